@@ -1,0 +1,101 @@
+"""The `omnibench` command: a click group whose subcommands live one per module.
+
+Each module in COMMANDS defines `command` (a click.Command or Group). Modules are
+imported only when their command runs, so `omnibench --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+import sys
+
+import click
+
+from omnibench import __version__
+from omnibench.errors import UserError
+
+# command name -> (module, one-line help shown in `omnibench --help`)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("omnibench.cli.simulate", "Simulate the robot from a command file (no board)."),
+    "ports": ("omnibench.cli.ports", "List serial ports."),
+    "board": ("omnibench.cli.board", "Talk to a motor board: info, monitor."),
+    "sim": ("omnibench.cli.sim", "Run the simulated Omnibot board (pseudo-terminal)."),
+    "sweep": ("omnibench.cli.procedures", "III.i  upside-down voltage sweep."),
+    "forward": ("omnibench.cli.procedures", "III.ii forward/backward runs (rolling resistance)."),
+    "lateral": ("omnibench.cli.procedures", "III.iii lateral runs with payloads (roller friction)."),
+    "energy": ("omnibench.cli.procedures", "IV     energy trajectories with the battery current logged."),
+    "campaign": ("omnibench.cli.campaign", "Run every procedure, fit, validate and diagnose: one report."),
+    "import": ("omnibench.cli.importer", "Convert other data (the 2019 TFM logs) into runs."),
+    "fit": ("omnibench.cli.analysis", "Fit every coefficient with uncertainties."),
+    "validate-energy": ("omnibench.cli.analysis", "Predicted vs measured battery energy per run."),
+    "predict": ("omnibench.cli.analysis", "Model prediction of a logged run vs measurement."),
+    "diagnose": ("omnibench.cli.diagnose", "Find the missing effect, add it, report before/after."),
+}
+
+
+def _available() -> list[str]:
+    """Commands whose module exists (the rest are still being built)."""
+    return [n for n, (mod, _) in COMMANDS.items() if importlib.util.find_spec(mod) is not None]
+
+
+class LazyGroup(click.Group):
+    """Resolves subcommands from COMMANDS on demand."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return _available()
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS or name not in _available():
+            return None
+        module = importlib.import_module(COMMANDS[name][0])
+        # A module serving several commands (sweep/forward/...) exposes a `commands` dict.
+        return module.commands[name] if hasattr(module, "commands") else module.command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(n, COMMANDS[n][1]) for n in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="omnibench")
+def cli() -> None:
+    """omnibench: drive the Omnibot, measure its friction, fit, validate, diagnose.
+
+    Every procedure also runs on the simulated robot: use --port sim://.
+    """
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: user errors become one line on stderr and a non-zero exit."""
+    debug = bool(os.environ.get("OMNIBENCH_DEBUG"))
+    try:
+        cli.main(args=argv, prog_name="omnibench", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("omnibench: aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except UserError as exc:
+        if debug:
+            raise
+        click.echo(f"omnibench: error: {exc}", err=True)
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("omnibench: interrupted", err=True)
+        sys.exit(130)
+    except Exception as exc:  # noqa: BLE001 - last line of defence: one line, not a traceback
+        if debug:
+            raise
+        click.echo(
+            f"omnibench: internal error: {type(exc).__name__}: {exc} "
+            "(set OMNIBENCH_DEBUG=1 for the traceback)",
+            err=True,
+        )
+        sys.exit(1)
