@@ -1,0 +1,482 @@
+"""Run directories: one folder per run, written as it goes, readable after any crash.
+
+A run directory holds (see docs/run-format.md for the full description):
+
+- ``run.json``     metadata (procedure as run, robot, board HELLO, operator answers, tool
+                   version, start/end, status and reason). Rewritten atomically (temp file +
+                   ``os.replace``) so it is always a complete JSON document.
+- ``samples.csv``  raw telemetry, one row per board sample, flushed at least once a second.
+- ``events.jsonl`` one JSON object per line: step boundaries, operator actions, faults.
+- ``steps.jsonl``  one JSON object per completed step: its parameters and its results.
+- ``procedure.toml`` / ``robot.toml``: copies of the files as run (when there were files).
+
+Why this shape: a crash or Ctrl-C can only lose the unflushed tail of ``samples.csv`` (at most
+the last second); the metadata says ``running`` until the writer closes it, so a reader can
+tell an interrupted run from a finished one; ``--resume`` appends a new *segment* to the same
+files, and the step records say which segment completed each step.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import math
+import os
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from omnibench import __version__
+from omnibench.errors import UserError
+
+FORMAT = "omnibench-run"
+FORMAT_VERSION = 1
+
+#: Columns of samples.csv, in order. Units: t s, u duty [-1, 1], enc counts, phi rad,
+#: i A (motor current, may be empty), V_batt V, I_batt A (may be empty), faults int bitmask.
+SAMPLE_COLUMNS: tuple[str, ...] = (
+    "segment",
+    "step",
+    "t",
+    "seq",
+    "u1", "u2", "u3", "u4",
+    "enc1", "enc2", "enc3", "enc4",
+    "phi1", "phi2", "phi3", "phi4",
+    "i1", "i2", "i3", "i4",
+    "V_batt",
+    "I_batt",
+    "faults",
+)
+
+STATUSES = ("running", "complete", "aborted", "failed")
+
+#: The samples file is flushed to the OS at least this often (host seconds).
+FLUSH_INTERVAL_S = 0.5
+
+
+def utc_now() -> str:
+    """ISO-8601 UTC time stamp with seconds, e.g. 2026-11-21T12:00:00Z."""
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def _json_default(obj: Any) -> Any:
+    """numpy scalars and arrays, Paths: JSON-able equivalents."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _clean(obj: Any) -> Any:
+    """NaN/inf become None so the JSON stays standard."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _clean(obj.tolist())
+    return obj
+
+
+def dumps(obj: Any) -> str:
+    """One-line standard JSON (no NaN)."""
+    return json.dumps(_clean(obj), default=_json_default, allow_nan=False)
+
+
+def write_json_atomic(path: Path, obj: Any) -> None:
+    """Write JSON to `path` so that a crash leaves either the old or the new file, never half."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(json.dumps(_clean(obj), default=_json_default, indent=2, allow_nan=False))
+        fh.write("\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _fmt(v: Any) -> str:
+    """One CSV cell: empty for None/NaN, repr-precision floats."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    if hasattr(v, "item"):
+        return _fmt(v.item())
+    return str(v)
+
+
+def new_run_dir(out: Path, procedure: str) -> Path:
+    """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
+    base = out / f"{procedure}-{stamp}"
+    path, n = base, 1
+    while True:
+        try:
+            path.mkdir()
+            return path
+        except FileExistsError:
+            n += 1
+            path = Path(f"{base}-{n}")
+
+
+class RunWriter:
+    """Writes one run directory as the run goes; every exit path leaves it readable.
+
+    Use as a context manager: leaving the block with an exception marks the run ``failed``
+    (or ``aborted`` for KeyboardInterrupt) unless `finish` was already called.
+    """
+
+    def __init__(self, path: Path, metadata: dict[str, Any], *, segment: int = 0) -> None:
+        self.path = Path(path)
+        self.metadata = metadata
+        self.segment = segment
+        self.counts_per_rev: float | None = metadata.get("counts_per_rev")
+        new_samples = not (self.path / "samples.csv").exists()
+        self._samples = open(self.path / "samples.csv", "a", encoding="utf-8", newline="")
+        if new_samples:
+            self._samples.write(",".join(SAMPLE_COLUMNS) + "\n")
+        self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
+        self._steps = open(self.path / "steps.jsonl", "a", encoding="utf-8")
+        self._last_flush = time.monotonic()
+        self._finished = False
+        self.n_samples = 0
+        self.save_metadata()
+        self.flush()
+
+    # -- creation -------------------------------------------------------------------------
+    @classmethod
+    def create(
+        cls,
+        out: Path,
+        procedure: str,
+        *,
+        run_dir: Path | None = None,
+        procedure_text: str | None = None,
+        procedure_file: str | None = None,
+        robot: Mapping[str, Any] | None = None,
+        robot_text: str | None = None,
+        robot_file: str | None = None,
+        board: Mapping[str, Any] | None = None,
+        port: str | None = None,
+        counts_per_rev: float | None = None,
+        extra: Mapping[str, Any] | None = None,
+    ) -> "RunWriter":
+        """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`)."""
+        if run_dir is None:
+            path = new_run_dir(Path(out), procedure)
+        else:
+            path = Path(run_dir)
+            path.mkdir(parents=True, exist_ok=True)
+            if any(path.iterdir()):
+                raise UserError(f"{path}: run directory is not empty")
+        if procedure_text is not None:
+            (path / "procedure.toml").write_text(procedure_text, encoding="utf-8")
+        if robot_text is not None:
+            (path / "robot.toml").write_text(robot_text, encoding="utf-8")
+        meta: dict[str, Any] = {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "run_id": path.name,
+            "procedure": procedure,
+            "procedure_file": procedure_file,
+            "procedure_text": procedure_text,
+            "robot_file": robot_file,
+            "robot": dict(robot) if robot is not None else None,
+            "counts_per_rev": counts_per_rev,
+            "board": dict(board) if board is not None else None,
+            "port": port,
+            "tool": "omnibench",
+            "tool_version": __version__,
+            "started": utc_now(),
+            "ended": None,
+            "status": "running",
+            "reason": None,
+            "segments": [{"segment": 0, "started": utc_now(), "ended": None, "status": "running"}],
+            "steps_planned": None,
+            "steps_complete": 0,
+            "operator_answers": [],
+        }
+        if extra:
+            meta.update(extra)
+        return cls(path, meta, segment=0)
+
+    @classmethod
+    def resume(cls, path: Path, *, board: Mapping[str, Any] | None = None) -> "RunWriter":
+        """Reopen an interrupted run to append a new segment (status back to ``running``)."""
+        path = Path(path)
+        meta_path = path / "run.json"
+        if not meta_path.is_file():
+            raise UserError(f"{path}: not a run directory (no run.json)")
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if meta.get("status") == "complete":
+            raise UserError(f"{path}: run is already complete; nothing to resume")
+        _trim_partial_line(path / "samples.csv")
+        _trim_partial_line(path / "events.jsonl")
+        _trim_partial_line(path / "steps.jsonl")
+        segment = 1 + max((s["segment"] for s in meta.get("segments", [])), default=-1)
+        meta.setdefault("segments", []).append(
+            {"segment": segment, "started": utc_now(), "ended": None, "status": "running",
+             "previous_status": meta.get("status"), "previous_reason": meta.get("reason")}
+        )
+        meta["status"] = "running"
+        meta["reason"] = None
+        meta["ended"] = None
+        if board is not None:
+            meta.setdefault("boards", []).append(dict(board))
+        w = cls(path, meta, segment=segment)
+        w.event("resume", segment=segment)
+        return w
+
+    # -- writing --------------------------------------------------------------------------
+    def save_metadata(self) -> None:
+        """Atomically rewrite run.json from `self.metadata`."""
+        write_json_atomic(self.path / "run.json", self.metadata)
+
+    def update(self, **fields: Any) -> None:
+        """Set metadata keys and save atomically."""
+        self.metadata.update(fields)
+        self.save_metadata()
+
+    def sample(self, row: Mapping[str, Any]) -> None:
+        """Append one telemetry sample; keys from SAMPLE_COLUMNS (missing ones left empty).
+
+        ``phi1..4`` are derived from ``enc1..4`` and the run's counts_per_rev when absent;
+        ``segment`` defaults to the writer's current segment.
+        """
+        r = dict(row)
+        r.setdefault("segment", self.segment)
+        if self.counts_per_rev:
+            k = 2.0 * math.pi / float(self.counts_per_rev)
+            for j in range(1, 5):
+                if r.get(f"phi{j}") is None and r.get(f"enc{j}") is not None:
+                    r[f"phi{j}"] = float(r[f"enc{j}"]) * k
+        self._samples.write(",".join(_fmt(r.get(c)) for c in SAMPLE_COLUMNS) + "\n")
+        self.n_samples += 1
+        self._maybe_flush()
+
+    def samples(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Append many samples."""
+        for r in rows:
+            self.sample(r)
+
+    def event(self, kind: str, *, t: float | None = None, step: int | None = None,
+              **fields: Any) -> None:
+        """Append one event (flushed at once): kind, host time, board time `t` (s), step."""
+        rec = {"kind": kind, "host_time": utc_now(), "t": t, "step": step,
+               "segment": self.segment, **fields}
+        self._events.write(dumps(rec) + "\n")
+        self._events.flush()
+        self._maybe_flush(force=True)
+
+    def operator_answer(self, step: int | None, action: str, prompt: str, answer: Any,
+                        source: str) -> None:
+        """Record an operator answer in the events and in run.json (`operator_answers`)."""
+        rec = {"step": step, "action": action, "prompt": prompt, "answer": answer,
+               "source": source, "segment": self.segment, "host_time": utc_now()}
+        self.metadata.setdefault("operator_answers", []).append(rec)
+        self.event("operator", step=step, action=action, prompt=prompt, answer=answer,
+                   source=source)
+        self.save_metadata()
+
+    def step_complete(self, record: Mapping[str, Any]) -> None:
+        """Append a completed step's flat record (parameters and results) and count it."""
+        rec = {"segment": self.segment, **record}
+        if "step" not in rec:
+            raise ValueError("step record needs a 'step' index")
+        self.flush()
+        self._steps.write(dumps(rec) + "\n")
+        self._steps.flush()
+        os.fsync(self._steps.fileno())
+        self.metadata["steps_complete"] = int(self.metadata.get("steps_complete", 0)) + 1
+        self.save_metadata()
+
+    def flush(self) -> None:
+        """Push buffered samples and events to the OS."""
+        self._samples.flush()
+        self._events.flush()
+        self._last_flush = time.monotonic()
+
+    def _maybe_flush(self, force: bool = False) -> None:
+        if force or time.monotonic() - self._last_flush >= FLUSH_INTERVAL_S:
+            self.flush()
+
+    def finish(self, status: str, reason: str | None = None) -> None:
+        """Close the files and mark the run `status` (complete|aborted|failed) with `reason`."""
+        if status not in STATUSES:
+            raise ValueError(f"status {status!r} not in {STATUSES}")
+        if self._finished:
+            return
+        self._finished = True
+        try:
+            self.event("run_end", status=status, reason=reason)
+        finally:
+            for fh in (self._samples, self._events, self._steps):
+                try:
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                    fh.close()
+                except (OSError, ValueError):
+                    pass
+            now = utc_now()
+            self.metadata["status"] = status
+            self.metadata["reason"] = reason
+            self.metadata["ended"] = now
+            for s in self.metadata.get("segments", []):
+                if s["segment"] == self.segment:
+                    s["ended"] = now
+                    s["status"] = status
+                    s["reason"] = reason
+            self.save_metadata()
+
+    def __enter__(self) -> "RunWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self._finished:
+            return
+        if exc_type is None:
+            self.finish("complete")
+        elif issubclass(exc_type, KeyboardInterrupt):
+            self.finish("aborted", "interrupted by the operator (Ctrl-C)")
+        else:
+            self.finish("failed", f"{exc_type.__name__}: {exc}".splitlines()[0])
+
+
+def _trim_partial_line(path: Path) -> None:
+    """Cut a half-written last line (a crash mid-write) so appends start on a fresh line."""
+    if not path.exists():
+        return
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1
+        with open(path, "r+b") as fh:
+            fh.truncate(cut)
+
+
+def _read_complete_lines(path: Path) -> str:
+    """File text without a half-written last line."""
+    if not path.exists():
+        return ""
+    text = path.read_text(encoding="utf-8")
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return text
+
+
+def _read_jsonl(path: Path) -> list[dict[str, Any]]:
+    out = []
+    for n, line in enumerate(_read_complete_lines(path).splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError as exc:
+            raise UserError(f"{path}:{n}: not a JSON line ({exc.msg})") from None
+    return out
+
+
+@dataclass
+class Run:
+    """A run read back: metadata dict and pandas DataFrames.
+
+    `samples`: every row of samples.csv (all segments, including interrupted attempts).
+    `events`: events.jsonl. `steps`: one row per completed step (flat: parameters + results).
+    """
+
+    path: Path
+    metadata: dict[str, Any]
+    samples: pd.DataFrame
+    events: pd.DataFrame
+    steps: pd.DataFrame
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def status(self) -> str:
+        return str(self.metadata.get("status"))
+
+    @property
+    def procedure(self) -> str:
+        return str(self.metadata.get("procedure"))
+
+    def step_samples(self, step: int) -> pd.DataFrame:
+        """Samples of `step` from the segment that completed it (an interrupted earlier
+        attempt of the same step is left out); all its samples if it never completed."""
+        s = self.samples[self.samples["step"] == step]
+        done = self.steps[self.steps["step"] == step] if len(self.steps) else self.steps
+        if len(done):
+            seg = int(done["segment"].iloc[-1])
+            s = s[s["segment"] == seg]
+        return s.reset_index(drop=True)
+
+    def clean_samples(self) -> pd.DataFrame:
+        """Samples of completed steps only, each from the segment that completed it."""
+        if not len(self.steps):
+            return self.samples.iloc[0:0]
+        keys = self.steps[["step", "segment"]].drop_duplicates()
+        return self.samples.merge(keys, on=["step", "segment"], how="inner")
+
+
+def read_run(path: Path | str) -> Run:
+    """Read a run directory (complete or not) into a `Run`.
+
+    Tolerates a half-written last line in any file (a crash mid-write).
+    """
+    path = Path(path)
+    meta_path = path / "run.json"
+    if not meta_path.is_file():
+        raise UserError(f"{path}: not a run directory (no run.json)")
+    try:
+        metadata = json.loads(meta_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{meta_path}:{exc.lineno}: broken JSON ({exc.msg})") from None
+    text = _read_complete_lines(path / "samples.csv")
+    if text.strip():
+        samples = pd.read_csv(io.StringIO(text))
+    else:
+        samples = pd.DataFrame(columns=list(SAMPLE_COLUMNS))
+    for c in SAMPLE_COLUMNS:
+        if c not in samples.columns:
+            samples[c] = float("nan")
+    samples = samples.astype({c: float for c in SAMPLE_COLUMNS if c not in ("segment", "step", "seq")},
+                             errors="ignore")
+    events = pd.DataFrame(_read_jsonl(path / "events.jsonl"))
+    steps_records = _read_jsonl(path / "steps.jsonl")
+    # A resumed step is recorded once; if a record repeats (should not), the last one wins.
+    by_step: dict[int, dict[str, Any]] = {}
+    for rec in steps_records:
+        by_step[int(rec["step"])] = rec
+    steps = pd.DataFrame([by_step[k] for k in sorted(by_step)])
+    if not len(steps):
+        steps = pd.DataFrame(columns=["step", "segment"])
+    return Run(path=path, metadata=metadata, samples=samples, events=events, steps=steps)
+
+
+def find_runs(root: Path | str, procedure: str | Sequence[str] | None = None) -> list[Path]:
+    """Run directories under `root` (recursively), optionally of the given procedure(s)."""
+    root = Path(root)
+    procs = {procedure} if isinstance(procedure, str) else set(procedure or [])
+    found = []
+    candidates = [root] if (root / "run.json").is_file() else sorted(root.rglob("run.json"))
+    for p in candidates:
+        d = p if p.is_dir() else p.parent
+        if procs:
+            try:
+                meta = json.loads((d / "run.json").read_text(encoding="utf-8"))
+            except (OSError, json.JSONDecodeError):
+                continue
+            if meta.get("procedure") not in procs:
+                continue
+        found.append(d)
+    return found

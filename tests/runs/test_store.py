@@ -1,0 +1,123 @@
+"""Run storage: written as it goes, readable after a crash, atomic metadata, resume segments."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from omnibench.errors import UserError
+from omnibench.runs import SAMPLE_COLUMNS, RunWriter, find_runs, read_run
+
+
+def _row(step: int, k: int) -> dict:
+    return {"step": step, "t": 0.01 * k, "seq": k, "u1": 0.5, "u2": 0.5, "u3": 0.5, "u4": 0.5,
+            "enc1": 10 * k, "enc2": 10 * k, "enc3": 10 * k, "enc4": 10 * k, "V_batt": 24.7}
+
+
+def test_round_trip(tmp_path):
+    w = RunWriter.create(tmp_path, "upside_down_sweep", counts_per_rev=980,
+                         procedure_text="procedure = 'x'\n", board={"name": "sim"})
+    for k in range(50):
+        w.sample(_row(0, k))
+    w.event("step_start", t=0.0, step=0, duty=0.5)
+    w.operator_answer(0, "flip", "Turn the robot upside down", "done", "file")
+    w.step_complete({"step": 0, "kind": "hold", "duty": 0.5, "w1": 3.2})
+    w.finish("complete")
+    run = read_run(w.path)
+    assert run.status == "complete"
+    assert run.metadata["steps_complete"] == 1
+    assert run.metadata["operator_answers"][0]["answer"] == "done"
+    assert list(run.samples.columns) == list(SAMPLE_COLUMNS)
+    assert len(run.samples) == 50
+    # phi derived from counts: 490 counts = half a revolution
+    np.testing.assert_allclose(run.samples["phi1"].iloc[49], 490 * 2 * np.pi / 980)
+    assert run.steps["w1"].iloc[0] == 3.2
+    assert set(run.events["kind"]) >= {"step_start", "operator", "run_end"}
+    assert (w.path / "procedure.toml").read_text() == "procedure = 'x'\n"
+    assert find_runs(tmp_path, "upside_down_sweep") == [w.path]
+    assert find_runs(tmp_path, "forward_runs") == []
+
+
+def test_exception_marks_failed_and_ctrl_c_aborted(tmp_path):
+    with pytest.raises(RuntimeError):
+        with RunWriter.create(tmp_path, "a") as w:
+            w.sample(_row(0, 1))
+            raise RuntimeError("board went away")
+    run = read_run(w.path)
+    assert run.status == "failed" and "board went away" in run.metadata["reason"]
+    assert len(run.samples) == 1
+    with pytest.raises(KeyboardInterrupt):
+        with RunWriter.create(tmp_path, "b") as w2:
+            raise KeyboardInterrupt
+    assert read_run(w2.path).status == "aborted"
+
+
+def test_crash_leaves_readable_running_run(tmp_path):
+    """A killed writer process leaves run.json valid ('running') and the flushed samples."""
+    script = textwrap.dedent(f"""
+        import os, time
+        from omnibench.runs import RunWriter
+        w = RunWriter.create({str(tmp_path)!r}, "crash", counts_per_rev=980)
+        for k in range(2000):
+            w.sample({{"step": 0, "t": k * 0.01, "seq": k, "enc1": k}})
+        w.flush()
+        w.sample({{"step": 0, "t": 99.0, "seq": 9999}})  # may be lost (not flushed)
+        print(w.path, flush=True)
+        os.kill(os.getpid(), 9)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    path = out.stdout.strip().splitlines()[0]
+    run = read_run(path)
+    assert run.status == "running"
+    assert len(run.samples) >= 2000
+    assert run.samples["seq"].iloc[1999] == 1999
+
+
+def test_partial_last_line_is_ignored_and_resume_appends_segment(tmp_path):
+    w = RunWriter.create(tmp_path, "sweep", counts_per_rev=980)
+    for k in range(10):
+        w.sample(_row(0, k))
+    w.step_complete({"step": 0, "duty": 0.1})
+    w.sample(_row(1, 10))
+    w.flush()
+    # simulate a crash mid-line
+    with open(w.path / "samples.csv", "a") as fh:
+        fh.write("0,1,0.2,11,0.5")
+    run = read_run(w.path)
+    assert len(run.samples) == 11
+    w2 = RunWriter.resume(w.path)
+    w2.sample(_row(1, 0))
+    w2.step_complete({"step": 1, "duty": 0.2})
+    w2.finish("complete")
+    run = read_run(w.path)
+    assert run.status == "complete"
+    assert list(run.steps["step"]) == [0, 1]
+    assert list(run.steps["segment"]) == [0, 1]
+    # step 1's interrupted attempt (segment 0) is kept in samples but left out of step_samples
+    assert len(run.samples[run.samples["step"] == 1]) == 2
+    assert list(run.step_samples(1)["segment"]) == [1]
+    assert len(run.clean_samples()) == 11
+    assert [s["segment"] for s in run.metadata["segments"]] == [0, 1]
+    with pytest.raises(UserError):
+        RunWriter.resume(w.path)  # complete runs cannot be resumed
+
+
+def test_metadata_is_atomic(tmp_path):
+    w = RunWriter.create(tmp_path, "x")
+    for k in range(20):
+        w.update(counter=k)
+        json.loads((w.path / "run.json").read_text())
+    assert not (w.path / "run.json.tmp").exists()
+    w.finish("complete")
+
+
+def test_not_a_run(tmp_path):
+    with pytest.raises(UserError, match="not a run directory"):
+        read_run(tmp_path)
