@@ -106,12 +106,12 @@ def _fmt(v: Any) -> str:
     """One CSV cell: empty for None/NaN, repr-precision floats."""
     if v is None:
         return ""
+    if hasattr(v, "item"):  # numpy scalar (np.float64 is also a float: unwrap first)
+        v = v.item()
     if isinstance(v, bool):
         return "1" if v else "0"
     if isinstance(v, float):
         return "" if math.isnan(v) else repr(v)
-    if hasattr(v, "item"):
-        return _fmt(v.item())
     return str(v)
 
 
@@ -449,8 +449,8 @@ def read_run(path: Path | str) -> Run:
     for c in SAMPLE_COLUMNS:
         if c not in samples.columns:
             samples[c] = float("nan")
-    samples = samples.astype({c: float for c in SAMPLE_COLUMNS if c not in ("segment", "step", "seq")},
-                             errors="ignore")
+    for c in SAMPLE_COLUMNS:
+        samples[c] = pd.to_numeric(samples[c], errors="coerce")
     events = pd.DataFrame(_read_jsonl(path / "events.jsonl"))
     steps_records = _read_jsonl(path / "steps.jsonl")
     # A resumed step is recorded once; if a record repeats (should not), the last one wins.

@@ -1,0 +1,42 @@
+"""`omnibench import`: convert other data into run directories (docs/run-format.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+@click.group("import")
+def command() -> None:
+    """Convert other data (the 2019 TFM logs) into runs."""
+
+
+@command.command("tfm")
+@click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--signs", default=None, metavar="S1,S2,S3,S4",
+              help="Per-wheel sign map (FL,FR,RL,RR) applied to the logged encoder counts so a "
+                   "positive duty gives a positive wheel speed. Default: +1,-1,+1,-1 for the raw "
+                   "square-wave logs, +1,+1,+1,+1 for results_jacked.mat (already corrected).")
+@click.option("--out", "out", default=Path("runs"), show_default=True,
+              type=click.Path(path_type=Path), help="Folder that receives the run directories.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def tfm(files: tuple[Path, ...], signs: str | None, out: Path, as_json: bool) -> None:
+    """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses)."""
+    from omnibench.runs import read_run
+    from omnibench.runs.tfm import import_tfm, parse_signs
+
+    sign_map = parse_signs(signs) if signs else None
+    results = []
+    for f in files:
+        path = import_tfm(f, out, signs=sign_map)
+        run = read_run(path)
+        results.append({"file": str(f), "run": str(path), "procedure": run.procedure,
+                        "steps": int(len(run.steps)), "samples": int(len(run.samples)),
+                        "sign_map": run.metadata["sign_map"]})
+        if not as_json:
+            click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
+                       f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']})")
+    if as_json:
+        click.echo(json.dumps(results, indent=2))

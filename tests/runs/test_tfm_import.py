@@ -1,0 +1,95 @@
+"""Importing the real 2019 logs: the runs reproduce the files' own numbers."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+
+from omnibench.runs import read_run
+from omnibench.runs.tfm import import_tfm
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "omnibot-tfm"
+if not DATA.is_dir():
+    DATA = Path("/work/shared/data/omnibot-tfm")
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="2019 TFM data not available")
+
+
+def _mat(name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return scipy.io.loadmat(str(DATA / name))
+
+
+def test_jacked_sweep_steady_speeds_equal_ws(tmp_path):
+    run = read_run(import_tfm(DATA / "results_jacked.mat", tmp_path))
+    ws = _mat("results_jacked.mat")["ws"]
+    cols = np.where(~np.isnan(ws[0]))[0]
+    assert run.procedure == "upside_down_sweep" and run.status == "complete"
+    assert len(run.steps) == 27 == len(cols)
+    np.testing.assert_array_equal(run.steps["command"].to_numpy(), cols + 1)
+    for j in range(4):
+        np.testing.assert_array_equal(run.steps[f"w{j + 1}"].to_numpy(), ws[j, cols])
+    # the raw samples of the last step (amplitude 112) give the same steady speed
+    last = run.step_samples(int(run.steps["step"].iloc[-1]))
+    assert len(last) == 132
+    np.testing.assert_allclose(last["u1"], 112 / 127)
+    tail = last.iloc[-40:]
+    for j in range(4):
+        speed = np.polyfit(tail["t"], tail[f"phi{j + 1}"], 1)[0]
+        assert speed == pytest.approx(ws[j, 111], rel=0.01)
+
+
+@pytest.mark.parametrize("name", ["square_fast.mat", "square_small.mat"])
+def test_square_wave_speeds_match_direct_computation(tmp_path, name):
+    run = read_run(import_tfm(DATA / name, tmp_path))
+    d = _mat(name)["data"].astype(float)
+    assert run.procedure == "step_response"
+    assert run.metadata["sign_map"] == [1, -1, 1, -1]
+    s = run.samples
+    assert len(s) == d.shape[1]
+    np.testing.assert_allclose(s["t"], d[1] / 1000.0)
+    np.testing.assert_allclose(s["u3"], d[0] / 127.0)
+    signs = [1, -1, 1, -1]
+    for j in range(4):
+        direct = signs[j] * np.diff(d[3 + j]) * 2 * math.pi / 980 / (np.diff(d[1]) / 1000.0)
+        from_run = np.diff(s[f"phi{j + 1}"]) / np.diff(s["t"])
+        np.testing.assert_allclose(from_run, direct, rtol=1e-9, atol=1e-9)
+    # with the sign map every wheel turns the way its duty says (summed over the steps)
+    for j in range(4):
+        agree = 0.0
+        for k in run.steps["step"]:
+            st = run.step_samples(int(k))
+            agree += np.sign(st["u1"].iloc[0]) * (st[f"phi{j + 1}"].iloc[-1] - st[f"phi{j + 1}"].iloc[0])
+        assert agree > 0
+    # steps are the constant-command segments, and they tile the samples
+    assert run.steps["n_samples"].sum() == d.shape[1]
+    assert set(np.sign(run.steps["command"])) == {-1, 1}
+
+
+def test_cli_import_with_sign_option_and_bad_input(tmp_path):
+    exe = [sys.executable, "-m", "omnibench"]
+    out = subprocess.run(exe + ["import", "tfm", str(DATA / "square_fast.mat"), "--signs", "+1,+1,+1,+1",
+                                "--out", str(tmp_path), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    run = read_run(res[0]["run"])
+    assert run.metadata["sign_map"] == [1, 1, 1, 1]
+    d = _mat("square_fast.mat")["data"]
+    np.testing.assert_array_equal(run.samples["enc2"], d[4])
+    bad = subprocess.run(exe + ["import", "tfm", str(DATA / "square_fast.mat"), "--signs", "1,2",
+                                "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--signs" in bad.stderr
+    junk = tmp_path / "junk.mat"
+    junk.write_text("not a mat file")
+    bad = subprocess.run(exe + ["import", "tfm", str(junk), "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
