@@ -1,0 +1,28 @@
+"""The world the robot is in: on the ground or upside down, payload, wheel sets, extra effects."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Mapping
+
+Mode = Literal["ground", "upside_down"]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """What the operator set up. `effects` are terms the world carries beyond the robot's own
+    declared ones ({term name: {param: value}}); the simulator uses them, a fit does not know them.
+    `wheel_mass` (kg, FL FR RL RR) overrides the robot's when other wheel sets are swapped in."""
+
+    mode: Mode = "ground"
+    payload: float = 0.0
+    wheel_mass: tuple[float, float, float, float] | None = None
+    effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("ground", "upside_down"):
+            raise ValueError(f"mode must be 'ground' or 'upside_down', not {self.mode!r}")
+        if self.payload < 0:
+            raise ValueError("payload must not be negative")
+        if self.wheel_mass is not None and (len(self.wheel_mass) != 4 or min(self.wheel_mass) <= 0):
+            raise ValueError("wheel_mass must be 4 positive masses (kg)")

@@ -1,0 +1,348 @@
+"""Simulate the Omnibot: one trajectory (`simulate`), many at once (`simulate_batch`), or
+step by step for the simulated board (`Simulator`). All share one compiled kernel.
+
+Commands are duties u in [-1, 1] per wheel, held from their time stamp until the next one
+(zero-order hold). Physics runs at `dt` (default 1 ms), sub-stepped when friction
+regularisation makes the equations stiff (see `stable_substeps`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from omnibench.model import geometry, kernel
+from omnibench.model.context import GRAVITY
+from omnibench.model.friction import CORE_PARAMS
+from omnibench.model.robot import Robot
+from omnibench.model.scenario import Scenario
+from omnibench.model.terms import Layout, layout
+
+METHODS = {"heun": kernel.METHOD_HEUN, "rk4": kernel.METHOD_RK4}
+DEFAULT_METHOD = "rk4"
+STABILITY_LIMIT = 2.5  # largest h * lambda allowed; RK4 is stable to 2.78 on the real axis, Heun to 2.0
+
+_CORE_TERM_OF = {"a": "transmission_friction", "b": "transmission_friction", "c": "transmission_friction",
+                 "a_r": "roller_friction", "b_r": "roller_friction", "c_r": "roller_friction",
+                 "C_r": "rolling_resistance"}
+
+
+def term_parameters(robot: Robot, scenario: Scenario | None = None) -> dict[str, dict[str, float]]:
+    """Every enabled term with its parameter values: the paper's terms from the robot's fields,
+    the robot's declared effects, then the world's undeclared effects (these win)."""
+    out: dict[str, dict[str, float]] = {}
+    for name in CORE_PARAMS:
+        out.setdefault(_CORE_TERM_OF[name], {})[name] = float(getattr(robot, name))
+    for source in (robot.effects, (scenario.effects if scenario else {})):
+        for name, params in source.items():
+            merged = dict(out.get(name, {}))
+            merged.update({k: float(v) for k, v in params.items()})
+            out[name] = merged
+    return out
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Kernel inputs for one trajectory."""
+
+    x0: np.ndarray
+    rv: np.ndarray
+    P: np.ndarray
+    EN: np.ndarray
+    Rm: np.ndarray
+    Sm: np.ndarray
+    Minv: np.ndarray
+    M: np.ndarray
+    substeps_lambda: float
+
+
+def normal_forces(robot: Robot, scenario: Scenario) -> np.ndarray:
+    """Base normal force on each wheel, N: W/4 on the ground, the wheel's own weight upside down."""
+    if scenario.mode == "upside_down":
+        masses = scenario.wheel_mass if scenario.wheel_mass is not None else robot.wheel_mass
+        return np.asarray(masses, dtype=float) * GRAVITY
+    return np.full(4, (robot.m + scenario.payload) * GRAVITY / 4.0)
+
+
+def prepare(robot: Robot, scenario: Scenario, lay: Layout | None = None) -> Prepared:
+    """Flatten (robot, scenario) into the kernel's per-trajectory arrays."""
+    lay = lay or layout()
+    mass = robot.m + scenario.payload
+    FN = normal_forces(robot, scenario)
+    values = dict(
+        mode=0.0 if scenario.mode == "ground" else 1.0, mass=mass, I_w=robot.I_w, k_t=robot.k_t,
+        k_e=robot.k_e, R_a=robot.R_a, eta=robot.eta, V_batt=robot.V_batt, I_0=robot.I_0, L=robot.L,
+        l=robot.l, r=robot.r, sign_width_phi=robot.sign_width_phi,
+        sign_width_sigma=robot.sign_width_sigma, W=mass * GRAVITY,
+        FN1=FN[0], FN2=FN[1], FN3=FN[2], FN4=FN[3],
+    )
+    rv = np.array([values[n] for n in kernel.RV_NAMES], dtype=float)
+    P = np.zeros(lay.n_params)
+    EN = np.zeros(len(lay.terms))
+    x0 = np.zeros(kernel.NX_FIXED + len(lay.terms) + lay.n_states)
+    for k, term in enumerate(lay.terms):
+        o = lay.param_offset[k]
+        for j, p in enumerate(term.params):
+            P[o + j] = p.default
+        s0 = kernel.NX_FIXED + len(lay.terms) + lay.state_offset[k]
+        x0[s0 : s0 + term.n_states] = term.state_init
+    for name, params in term_parameters(robot, scenario).items():
+        k = lay.index(name)
+        term = lay.terms[k]
+        for pname, v in params.items():
+            P[lay.param_offset[k] + term.param_names.index(pname)] = v
+        EN[k] = 1.0
+    Rm = geometry.inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
+    Sm = geometry.slip_matrix(robot.L, robot.l, robot.alpha)
+    M = np.diag([mass, mass, robot.I_z]) + robot.I_w * Rm.T @ Rm
+    lam = _stiffness(robot, scenario, FN, Rm, Sm, M)
+    return Prepared(x0, rv, P, EN, Rm, Sm, np.linalg.inv(M), M, lam)
+
+
+def _stiffness(robot: Robot, scenario: Scenario, FN, Rm, Sm, M) -> float:
+    """Largest decay rate (1/s) of the linearised friction and back-EMF damping near zero speed."""
+    d_w = robot.eta * robot.k_t * robot.k_e / robot.R_a + (1 + robot.c * FN) * (robot.a + robot.b / robot.sign_width_phi)
+    if scenario.mode == "upside_down":
+        return float(np.max(d_w) / robot.I_w)
+    d_w = d_w + FN * robot.C_r * robot.r / robot.sign_width_phi
+    d_r = (1 + robot.c_r * FN) * (robot.a_r + robot.b_r / robot.sign_width_sigma)
+    K = Rm.T @ np.diag(d_w) @ Rm + Sm.T @ np.diag(d_r) @ Sm
+    return float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(M, K)))))
+
+
+def stable_substeps(lam: float, dt: float) -> int:
+    """Sub-steps per physics step so that h * lambda <= STABILITY_LIMIT."""
+    return max(1, math.ceil(lam * dt / STABILITY_LIMIT))
+
+
+def signal_names(lay: Layout | None = None) -> list[str]:
+    """Names of the kernel's recorded columns (state, then auxiliary signals)."""
+    lay = lay or layout()
+    names = ["x", "y", "psi", "v1", "v2", "psi_dot", "phi1", "phi2", "phi3", "phi4",
+             "phi_dot1_free", "phi_dot2_free", "phi_dot3_free", "phi_dot4_free",
+             "E_batt", "E_copper", "E_conversion", "E_quiescent"]
+    names += [f"E_{t.name}" for t in lay.terms]
+    for t in lay.terms:
+        names += [f"{t.name}.x{k}" for k in range(t.n_states)]
+    return names + list(kernel.AUX_NAMES)
+
+
+def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    t_cmd = np.asarray(t_cmd, dtype=float)
+    u = np.asarray(u_cmd, dtype=float)
+    if u.ndim == 2:
+        u = u[None]
+    if t_cmd.ndim != 1 or u.shape[1] != t_cmd.shape[0] or u.shape[2] != 4:
+        raise ValueError("commands must be t (K,) and duties (K, 4) or (B, K, 4)")
+    if np.any(np.diff(t_cmd) < 0):
+        raise ValueError("command times must not decrease")
+    t_steps = t0 + np.arange(n_steps) * dt
+    idx = np.searchsorted(t_cmd, t_steps + 1e-9 * dt, side="right") - 1
+    u_full = np.concatenate([np.zeros((u.shape[0], 1, 4)), u], axis=1)  # before the first command: 0
+    return (idx + 1).astype(np.int64), np.ascontiguousarray(u_full)
+
+
+@dataclass
+class BatchResult:
+    """Recorded signals of B trajectories: array (B, n_rec, n_signals), times t (n_rec,)."""
+
+    t: np.ndarray
+    array: np.ndarray
+    columns: list[str]
+
+    def signal(self, name: str) -> np.ndarray:
+        return self.array[:, :, self.columns.index(name)]
+
+    def frame(self, b: int = 0) -> pd.DataFrame:
+        return _frame(self.t, self.array[b], self.columns)
+
+
+def _frame(t: np.ndarray, rec: np.ndarray, columns: list[str]) -> pd.DataFrame:
+    df = pd.DataFrame(rec, columns=columns)
+    df.insert(0, "t", t)
+    free = df[["phi_dot1_free", "phi_dot2_free", "phi_dot3_free", "phi_dot4_free"]].to_numpy()
+    return df.drop(columns=["phi_dot1_free", "phi_dot2_free", "phi_dot3_free", "phi_dot4_free"]).assign(
+        **{f"phi_dot{j + 1}": free[:, j] for j in range(4)}
+    )
+
+
+def simulate_batch(
+    robots: Robot | Sequence[Robot],
+    scenarios: Scenario | Sequence[Scenario],
+    t_cmd,
+    u_cmd,
+    t_end: float,
+    *,
+    dt: float = 1e-3,
+    record_every: int = 1,
+    method: str = DEFAULT_METHOD,
+    substeps: int | None = None,
+) -> BatchResult:
+    """Simulate B (robot, scenario) pairs over [0, t_end] with duties u_cmd ((K,4) shared or (B,K,4))."""
+    robots = [robots] if isinstance(robots, Robot) else list(robots)
+    scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
+    B = max(len(robots), len(scenarios))
+    if len(robots) == 1:
+        robots = robots * B
+    if len(scenarios) == 1:
+        scenarios = scenarios * B
+    if len(robots) != B or len(scenarios) != B:
+        raise ValueError("robots and scenarios must have the same length (or length 1)")
+    lay = layout()
+    mod = kernel.load_kernel(lay)
+    preps = [prepare(r, s, lay) for r, s in zip(robots, scenarios)]
+    n_steps = int(round(t_end / dt))
+    idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
+    if U.shape[0] not in (1, B):
+        raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
+    sub = substeps or stable_substeps(max(p.substeps_lambda for p in preps), dt)
+    n_rec = n_steps // record_every + 1
+    stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
+    columns = signal_names(lay)
+    REC = np.zeros((B, n_rec, len(columns)))
+    mod.run(stack("x0"), stack("rv"), stack("P"), stack("EN"), stack("Rm"), stack("Sm"), stack("Minv"),
+            stack("M"), idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
+    t = np.arange(n_rec) * record_every * dt
+    return BatchResult(t, REC, columns)
+
+
+def simulate(
+    robot: Robot,
+    scenario: Scenario,
+    t_cmd,
+    u_cmd,
+    t_end: float,
+    *,
+    dt: float = 1e-3,
+    record_every: int = 1,
+    method: str = DEFAULT_METHOD,
+) -> pd.DataFrame:
+    """One trajectory as a DataFrame (columns in docs/simulate.md); phi_dot from R v on the ground."""
+    res = simulate_batch(robot, scenario, t_cmd, u_cmd, t_end, dt=dt, record_every=record_every, method=method)
+    df = res.frame(0)
+    if scenario.mode == "ground":
+        Rm = geometry.inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
+        phid = df[["v1", "v2", "psi_dot"]].to_numpy() @ Rm.T
+        for j in range(4):
+            df[f"phi_dot{j + 1}"] = phid[:, j]
+    return df
+
+
+@dataclass(frozen=True)
+class SimState:
+    """The simulated robot at one instant (SI units)."""
+
+    t: float
+    pose: np.ndarray
+    velocity: np.ndarray
+    phi: np.ndarray
+    phi_dot: np.ndarray
+    motor_current: np.ndarray
+    V_batt: float
+    I_batt: float
+    E_batt: float
+
+
+class Simulator:
+    """Step-by-step simulation for the simulated board: hold duties for a duration, read state."""
+
+    def __init__(self, robot: Robot, scenario: Scenario | None = None, *, dt: float = 1e-3,
+                 method: str = DEFAULT_METHOD) -> None:
+        self.robot = robot
+        self.dt = dt
+        self.method = method
+        self._lay = layout()
+        self._mod = kernel.load_kernel(self._lay)
+        self._steps = 0
+        self._columns = signal_names(self._lay)
+        self._X: np.ndarray | None = None
+        self.set_scenario(scenario or Scenario())
+
+    @property
+    def t(self) -> float:
+        """Simulated time since start, s."""
+        return self._steps * self.dt
+
+    @property
+    def scenario(self) -> Scenario:
+        return self._scenario
+
+    def set_scenario(self, scenario: Scenario) -> None:
+        """Apply an operator action (flip, swap wheels, payload): the robot ends at rest,
+        wheel angles and accumulated energy are kept."""
+        self._scenario = scenario
+        prep = prepare(self.robot, scenario, self._lay)
+        X = prep.x0.copy()
+        if self._X is not None:
+            X[0:3] = self._X[0:3]
+            X[6:10] = self._X[6:10]
+            X[kernel.X_E_BATT : kernel.NX_FIXED + len(self._lay.terms)] = self._X[
+                kernel.X_E_BATT : kernel.NX_FIXED + len(self._lay.terms)]
+            X[kernel.NX_FIXED + len(self._lay.terms):] = self._X[kernel.NX_FIXED + len(self._lay.terms):]
+        self._X = X
+        self._prep = prep
+        self._sub = stable_substeps(prep.substeps_lambda, self.dt)
+        self._duties = np.zeros(4)
+        self._last = self._advance_steps(np.zeros(4), 0)
+
+    def _advance_steps(self, duties: np.ndarray, n: int) -> np.ndarray:
+        p = self._prep
+        REC = np.zeros((1, 2 if n > 0 else 1, len(self._columns)))
+        U = np.asarray(duties, dtype=float).reshape(1, 1, 4)
+        if n == 0:
+            # evaluate the auxiliary signals at the current state without stepping
+            idx = np.zeros(1, dtype=np.int64)
+            Xc = self._X.copy()
+            self._mod.run(Xc[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
+                          p.Minv[None], p.M[None], idx, U, self.t, self.dt, 1, METHODS[self.method], 1, REC)
+            return REC[0, 0]
+        idx = np.zeros(n, dtype=np.int64)
+        XF = self._mod.run(self._X[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
+                           p.Minv[None], p.M[None], idx, U, self.t, self.dt, self._sub,
+                           METHODS[self.method], n, REC)
+        self._X = XF[0]
+        self._steps += n
+        return REC[0, 1]
+
+    def advance(self, duties, duration: float) -> SimState:
+        """Hold `duties` (4, in [-1, 1]) for `duration` seconds (rounded to whole physics steps)."""
+        duties = np.clip(np.asarray(duties, dtype=float), -1.0, 1.0)
+        if duties.shape != (4,):
+            raise ValueError("duties must be 4 values")
+        target = int(round((self.t + duration) / self.dt))
+        n = max(0, target - self._steps)
+        self._duties = duties
+        if n:
+            self._last = self._advance_steps(duties, n)
+        else:
+            self._last = self._advance_steps(duties, 0)
+        return self.state
+
+    @property
+    def state(self) -> SimState:
+        row = dict(zip(self._columns, self._last))
+        v = np.array([row["v1"], row["v2"], row["psi_dot"]])
+        if self._scenario.mode == "ground":
+            phid = self._prep.Rm @ v
+        else:
+            phid = np.array([row[f"phi_dot{j}_free"] for j in range(1, 5)])
+        return SimState(
+            t=self.t,
+            pose=np.array([row["x"], row["y"], row["psi"]]),
+            velocity=v,
+            phi=np.array([row[f"phi{j}"] for j in range(1, 5)]),
+            phi_dot=phid,
+            motor_current=np.array([row[f"i{j}"] for j in range(1, 5)]),
+            V_batt=row["V_batt"],
+            I_batt=row["I_batt"],
+            E_batt=row["E_batt"],
+        )
+
+
+def robots_with(robot: Robot, rows: Sequence[Mapping[str, float]]) -> list[Robot]:
+    """Copies of `robot` with fields changed per row (for batch parameter studies)."""
+    return [robot.replace(**row) for row in rows]
