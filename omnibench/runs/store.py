@@ -271,7 +271,7 @@ class RunWriter:
         for r in rows:
             self.sample(r)
 
-    def event(self, kind: str, *, t: float | None = None, step: int | None = None,
+    def event(self, kind: str, /, *, t: float | None = None, step: int | None = None,
               **fields: Any) -> None:
         """Append one event (flushed at once): kind, host time, board time `t` (s), step."""
         rec = {"kind": kind, "host_time": utc_now(), "t": t, "step": step,

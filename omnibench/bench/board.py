@@ -1,0 +1,72 @@
+"""What the procedures need from a motor board, and nothing about bytes.
+
+`BenchBoard` is the interface the runner drives; `open_bench_board(url)` adapts the board
+client of omnibench.link (real serial port, `sim://` simulated board, or the pseudo-terminal
+of `omnibench sim serve`) to it. Tests may pass any object with these methods.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, Mapping, Protocol
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    """One board sample (SI units). `t` is board time in s (unwrapped), `seq` the frame counter."""
+
+    t: float
+    seq: int
+    encoder: tuple[int, int, int, int]
+    motor_current: tuple[float, float, float, float] | None
+    battery_voltage: float | None
+    battery_current: float | None
+    faults: int
+    duty: tuple[float, float, float, float]
+
+
+class BenchBoard(Protocol):
+    """The board as the procedures see it."""
+
+    hello: Mapping[str, Any]  # protocol/firmware version, board id, boot id, counts_per_rev, ...
+    is_simulator: bool
+    has_battery_current: bool
+    has_motor_current: bool
+
+    def configure(self, *, telemetry_hz: float, watchdog_s: float) -> None: ...
+
+    def reset_encoders(self) -> None: ...
+
+    def set_duties(self, duties: Sequence[float]) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def read(self, timeout: float) -> Telemetry:
+        """The next telemetry sample (BoardError if none within `timeout` host seconds)."""
+        ...
+
+    def discard_pending(self) -> int:
+        """Drop telemetry that queued up while the operator worked; returns how many."""
+        ...
+
+    def keepalive(self) -> None:
+        """Tell the watchdog the host is alive (with the motors stopped)."""
+        ...
+
+    def sim_set_world(self, *, mode: str | None = None, payload: float | None = None,
+                      wheel_mass: Sequence[float] | None = None) -> None: ...
+
+    def sim_truth(self) -> tuple[float, float, float]:
+        """True pose (x m, y m, psi rad) of the simulated robot."""
+        ...
+
+
+@contextlib.contextmanager
+def open_bench_board(url: str, timeout: float = 2.0) -> Iterator[BenchBoard]:
+    """Open the board at `url` (serial device, `sim://...`) as a BenchBoard; motors stopped on exit."""
+    from omnibench.bench.link_adapter import LinkBoard
+
+    with LinkBoard.open(url, timeout=timeout) as board:
+        yield board

@@ -1,0 +1,420 @@
+"""The runner: executes a plan's steps on a board, records everything, stops the motors on
+every exit path.
+
+Timing follows the board's clock (telemetry time stamps), never the host's wall clock, so a
+simulated board may run faster than real time. Between steps the runner asks the operator for
+the physical actions the next step's world needs (flip, swap wheels, place a weight) and, for
+timed runs, for the start mark and the measurement after the run.
+
+Results each step adds to its record (units SI):
+
+- ``hold`` (upside-down sweep): ``steady`` (bool), ``hold_time`` s, ``w1..w4`` steady wheel
+  speeds rad/s (slope of a straight-line fit of the wheel angle over the last `average` s),
+  ``w_std1..4`` rad/s (std of the two-reading speeds in that window), ``i1..i4`` mean motor
+  currents A, ``V_batt``, ``I_batt`` means, ``t_hold`` board time the duty was applied.
+- ``timed`` (forward/lateral): ``dphi1..4`` rad (encoder angle change over the run),
+  ``encoder_distance`` m = r * mean(dphi) (the rolling distance), ``kin_forward``/``kin_left``
+  m (displacement from pinv(R) dphi), ``measured_distance`` or ``measured_forward``/``measured_left``
+  m (the operator's tape), ``slip`` m (measured minus rolling), ``no_slip`` (bool).
+- ``trajectory`` (energy): ``energy`` J (trapezoid of V_batt*I_batt over the step), ``charge`` C,
+  ``I_batt_mean``, ``I_batt_peak`` A, ``has_current`` (bool).
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from omnibench.bench.operator import Action, actions_for
+from omnibench.bench.procedure import Plan, Step, World
+from omnibench.errors import BoardError, UserError
+
+FAULT_NAMES = ("WATCHDOG", "OVERCURRENT", "UNDERVOLTAGE", "DRIVER", "ESTOP")
+
+
+def fault_names(flags: int) -> str:
+    return "+".join(n for b, n in enumerate(FAULT_NAMES) if flags & (1 << b)) or f"0x{flags:02x}"
+
+
+# --------------------------------------------------------------------------- steady state
+@dataclass
+class SteadyVerdict:
+    steady: bool
+    slope: np.ndarray  # rad/s^2 per wheel
+    t_stat: np.ndarray
+    std: np.ndarray  # rad/s
+    floor: np.ndarray  # rad/s
+    n: int
+
+
+def steady_state(t: np.ndarray, phi: np.ndarray, *, window: float, confidence: float,
+                 noise_factor: float, relative_tolerance: float, counts_per_rev: float) -> SteadyVerdict:
+    """Are the wheel speeds steady over the last `window` seconds of (t s, phi (n,4) rad)?
+
+    Speeds come from successive readings, w_k = dphi/dt. Per wheel, steady when
+      (a) the slope of a straight-line fit of w against t is not significantly different from
+          zero (two-sided t-test at `confidence`), or the speed change it implies over the
+          window is below half the noise floor (a drift too small to matter), and
+      (b) std(w) <= noise_factor * floor, where floor = max(quantisation noise of a
+          two-reading speed, 2 pi / counts_per_rev / (median dt * sqrt 6),
+          relative_tolerance * |mean w|).
+    """
+    from scipy import stats
+
+    sel = t >= t[-1] - window
+    tt, pp = t[sel], phi[sel]
+    n = len(tt) - 1
+    if n < 6:
+        z = np.zeros(phi.shape[1])
+        return SteadyVerdict(False, z, z, z, z, n)
+    dt = np.diff(tt)
+    w = np.diff(pp, axis=0) / dt[:, None]
+    tm = 0.5 * (tt[1:] + tt[:-1])
+    x = tm - tm.mean()
+    sxx = float((x**2).sum())
+    slope = (x[:, None] * (w - w.mean(axis=0))).sum(axis=0) / sxx
+    resid = w - w.mean(axis=0) - np.outer(x, slope)
+    s2 = (resid**2).sum(axis=0) / max(n - 2, 1)
+    se = np.sqrt(s2 / sxx)
+    t_stat = np.where(se > 0, np.abs(slope) / np.where(se > 0, se, 1.0), np.where(slope == 0, 0.0, np.inf))
+    t_crit = stats.t.ppf(0.5 + confidence / 2.0, max(n - 2, 1))
+    q = 2.0 * math.pi / float(counts_per_rev)
+    quant = q / (float(np.median(dt)) * math.sqrt(6.0))
+    floor = np.maximum(quant, relative_tolerance * np.abs(w.mean(axis=0)))
+    std = w.std(axis=0, ddof=1)
+    slope_ok = (t_stat < t_crit) | (np.abs(slope) * window <= 0.5 * floor)
+    std_ok = std <= noise_factor * floor
+    return SteadyVerdict(bool(np.all(slope_ok & std_ok)), slope, t_stat, std, floor, n)
+
+
+def angle_slope(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Least-squares slope of each wheel angle against time (rad/s), (n,4) -> (4,)."""
+    x = t - t.mean()
+    return (x[:, None] * (phi - phi.mean(axis=0))).sum(axis=0) / float((x**2).sum())
+
+
+# --------------------------------------------------------------------------- runner
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: handled like Ctrl-C (stop, mark aborted, keep the data)."""
+
+
+@dataclass
+class StepData:
+    """Samples of the current step, kept in memory for the step's results."""
+
+    t: list[float] = field(default_factory=list)
+    enc: list[tuple[int, ...]] = field(default_factory=list)
+    cur: list[tuple[float, ...] | None] = field(default_factory=list)
+    V: list[float | None] = field(default_factory=list)
+    I: list[float | None] = field(default_factory=list)
+
+    def arrays(self, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
+        t = np.asarray(self.t, dtype=float)
+        phi = np.asarray(self.enc, dtype=float).reshape(-1, 4) * (2 * math.pi / counts_per_rev)
+        return t, phi
+
+
+class Runner:
+    """Runs the steps of `plan` on `board`, writing to `writer`, asking `operator`.
+
+    `progress(board_seconds_done, label)` is called as board time advances.
+    `echo(line)` prints one line for the engineer.
+    """
+
+    def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
+                 progress: Callable[[float, str], None] | None = None,
+                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0) -> None:
+        self.plan, self.robot, self.board, self.writer, self.operator = plan, robot, board, writer, operator
+        self.progress = progress or (lambda done, label: None)
+        self.echo = echo or (lambda line: None)
+        self.read_timeout = read_timeout
+        self.world: World | None = None
+        self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
+        self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
+        self.keep_every = self.watchdog_s / 4.0
+        self._last_cmd_t = -math.inf
+        self._duties = (0.0, 0.0, 0.0, 0.0)
+        self.done_time = 0.0
+        self.records: list[dict[str, Any]] = []
+
+    # -- board helpers ----------------------------------------------------------------------
+    def _command(self, duties: Sequence[float], t_now: float | None = None) -> None:
+        self._duties = tuple(float(u) for u in duties)
+        self.board.set_duties(self._duties)
+        if t_now is not None:
+            self._last_cmd_t = t_now
+
+    def _stop(self) -> None:
+        self._duties = (0.0, 0.0, 0.0, 0.0)
+        self.board.stop()
+
+    def _read(self, step: Step, data: StepData | None) -> Any:
+        s = self.board.read(self.read_timeout)
+        mc = s.motor_current if getattr(self.board, "has_motor_current", True) else None
+        ib = s.battery_current if getattr(self.board, "has_battery_current", True) else None
+        row = {"step": step.index, "t": s.t, "seq": s.seq, "faults": s.faults,
+               **{f"u{j + 1}": s.duty[j] for j in range(4)},
+               **{f"enc{j + 1}": s.encoder[j] for j in range(4)},
+               "V_batt": s.battery_voltage, "I_batt": ib}
+        if mc is not None:
+            row.update({f"i{j + 1}": mc[j] for j in range(4)})
+        self.writer.sample(row)
+        if data is not None:
+            data.t.append(s.t)
+            data.enc.append(tuple(s.encoder))
+            data.cur.append(tuple(mc) if mc is not None else None)
+            data.V.append(s.battery_voltage)
+            data.I.append(ib)
+        if s.faults:
+            self.writer.event("fault", t=s.t, step=step.index, flags=int(s.faults), names=fault_names(int(s.faults)))
+            self._stop()
+            raise BoardError(f"board reported fault {fault_names(int(s.faults))} during step {step.index} "
+                             f"({step.label}); motors stopped")
+        if self._duties != (0.0, 0.0, 0.0, 0.0) and s.t - self._last_cmd_t >= self.keep_every:
+            self._command(self._duties, s.t)  # keep the watchdog fed with the same duties
+        return s
+
+    def _run_for(self, step: Step, data: StepData, duration: float,
+                 schedule: list[tuple[float, tuple[float, ...]]] | None,
+                 until: Callable[[float], bool] | None = None) -> tuple[float, float]:
+        """Apply `schedule` (None: motors off) for `duration` board seconds; returns (t0, t_end)."""
+        if schedule:
+            self._command(schedule[0][1])
+        k = 0
+        s = self._read(step, data)
+        t0 = s.t
+        if schedule:
+            self._last_cmd_t = t0
+        last_progress = t0
+        while True:
+            rel = s.t - t0
+            if rel >= duration or (until is not None and until(rel)):
+                break
+            if schedule:
+                while k + 1 < len(schedule) and rel >= schedule[k + 1][0]:
+                    k += 1
+                    self._command(schedule[k][1], s.t)
+            elif s.t - self._last_cmd_t >= self.keep_every:
+                self.board.keepalive()
+                self._last_cmd_t = s.t
+            if s.t - last_progress >= 0.2:
+                self.progress(s.t - last_progress, step.label)
+                last_progress = s.t
+            s = self._read(step, data)
+        self.progress(s.t - last_progress, step.label)
+        return t0, s.t
+
+    # -- the operator -------------------------------------------------------------------------
+    def _ask(self, action: Action, step: Step) -> None:
+        self._stop()
+        self.echo(f"operator: {action.prompt}")
+        answer = self.operator.perform(action, step)
+        self.writer.operator_answer(step.index, action.key, action.prompt, answer, self.operator.source)
+        self._after_operator()
+
+    def _after_operator(self) -> None:
+        n = self.board.discard_pending()
+        if n:
+            self.writer.event("discarded", samples=int(n), why="telemetry queued while the operator worked")
+
+    def _setup_world(self, step: Step) -> None:
+        for action in actions_for(self.world, step.world):
+            self._ask(action, step)
+        if self.world != step.world:
+            self.writer.event("world", step=step.index, **{
+                "mode": step.world.mode, "wheel_set": step.world.wheel_set,
+                "wheel_mass": list(step.world.wheel_mass) if step.world.wheel_mass else None,
+                "payload": step.world.payload})
+        self.world = step.world
+
+    # -- steps ---------------------------------------------------------------------------------
+    def run(self, steps: Sequence[Step]) -> list[dict[str, Any]]:
+        """Run `steps` in order; each completed step is written at once (resume-safe)."""
+        self.board.configure(telemetry_hz=self.plan.settings.get("telemetry_hz", 100.0),
+                             watchdog_s=self.watchdog_s)
+        self._stop()
+        self.board.reset_encoders()
+        self.writer.event("encoders_reset")
+        for step in steps:
+            self._setup_world(step)
+            self.writer.event("step_start", step=step.index, label=step.label, step_kind=step.kind)
+            if step.kind == "hold":
+                rec = self._hold(step)
+            elif step.kind == "timed":
+                rec = self._timed(step)
+            elif step.kind == "trajectory":
+                rec = self._trajectory(step)
+            else:  # pragma: no cover - plans only make the kinds above
+                raise ValueError(step.kind)
+            record = {"step": step.index, "kind": step.kind, "label": step.label,
+                      "mode": step.world.mode, "wheel_set": step.world.wheel_set,
+                      "payload": step.world.payload, **step.params, **rec}
+            self.writer.event("step_end", t=rec.get("t_end"), step=step.index)
+            self.writer.step_complete(record)
+            self.records.append(record)
+        self._stop()
+        return self.records
+
+    def _hold(self, step: Step) -> dict[str, Any]:
+        ss = self.plan.settings["steady_state"]
+        data = StepData()
+        t_rest = None
+        if step.settle > 0:
+            self._stop()
+            t_rest, _ = self._run_for(step, data, step.settle, None)
+        hold = StepData()
+        verdict: list[SteadyVerdict | None] = [None]
+        counter = [0]
+
+        def until(rel: float) -> bool:
+            if rel < ss["min_hold"] + ss["window"]:
+                return False
+            counter[0] += 1
+            if counter[0] % 3:
+                return False
+            t, phi = hold.arrays(self.cpr)
+            v = steady_state(t, phi, window=ss["window"], confidence=ss["confidence"],
+                             noise_factor=ss["noise_factor"], relative_tolerance=ss["relative_tolerance"],
+                             counts_per_rev=self.cpr)
+            verdict[0] = v
+            return v.steady
+
+        t0, t_end = self._run_for_hold(step, hold, data, until)
+        t, phi = hold.arrays(self.cpr)
+        sel = t >= t[-1] - ss["average"]
+        w = angle_slope(t[sel], phi[sel]) if sel.sum() >= 3 else np.full(4, np.nan)
+        dts = np.diff(t[sel])
+        wk = np.diff(phi[sel], axis=0) / dts[:, None] if len(dts) else np.full((1, 4), np.nan)
+        v = verdict[0]
+        rec: dict[str, Any] = {
+            "steady": bool(v.steady) if v is not None else False,
+            "hold_time": t_end - t0, "t_rest": t_rest, "t_hold": t0, "t_start": t_rest if t_rest is not None else t0,
+            "t_end": t_end,
+            **{f"w{j + 1}": float(w[j]) for j in range(4)},
+            **{f"w_std{j + 1}": float(np.std(wk[:, j], ddof=1)) if len(wk) > 1 else None for j in range(4)},
+        }
+        rec.update(self._electrical(hold, sel))
+        if not rec["steady"]:
+            self.writer.event("not_steady", step=step.index, t=t_end,
+                              why=f"wheel speeds not steady after max_hold {ss['max_hold']:g} s")
+        return rec
+
+    def _run_for_hold(self, step: Step, hold: StepData, data: StepData,
+                      until: Callable[[float], bool]) -> tuple[float, float]:
+        t0, t_end = self._run_for(step, hold, step.duration, [(0.0, step.schedule[0][1])], until)
+        return t0, t_end
+
+    def _electrical(self, d: StepData, sel: np.ndarray | None = None) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        idx = np.flatnonzero(sel) if sel is not None else np.arange(len(d.t))
+        cur = [d.cur[k] for k in idx if d.cur[k] is not None]
+        for j in range(4):
+            out[f"i{j + 1}"] = float(np.mean([c[j] for c in cur])) if cur else None
+        V = [d.V[k] for k in idx if d.V[k] is not None]
+        I = [d.I[k] for k in idx if d.I[k] is not None]
+        out["V_batt"] = float(np.mean(V)) if V else None
+        out["I_batt"] = float(np.mean(I)) if I else None
+        return out
+
+    def _timed(self, step: Step) -> dict[str, Any]:
+        self._stop()
+        answer = self.operator.start_mark(step)
+        self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
+                                    self.operator.source)
+        self._after_operator()
+        data = StepData()
+        t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
+        self._stop()
+        _, t_end = self._run_for(step, data, step.settle, None)
+        t, phi = data.arrays(self.cpr)
+        dphi = phi[-1] - phi[0]
+        measured = self.operator.measure(step)
+        prompt = ("distance travelled (m)" if step.measure == "distance"
+                  else "displacement forward, left (m)")
+        self.writer.operator_answer(step.index, step.measure or "measure", prompt,
+                                    list(measured) if isinstance(measured, tuple) else measured,
+                                    self.operator.source)
+        self._after_operator()
+        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
+                **self.slip_check(dphi, measured, step), **self._electrical(data)}
+
+    def slip_check(self, dphi: np.ndarray, measured: Any, step: Step) -> dict[str, Any]:
+        """Compare the encoders' rolling distance with the operator's measurement."""
+        from omnibench.model.geometry import inverse_kinematics
+
+        r = self.robot.r
+        R = inverse_kinematics(self.robot.L, self.robot.l, r, self.robot.alpha)
+        kin = np.linalg.pinv(R) @ dphi  # body displacement if the wheels do not slip
+        rolling = float(r * np.mean(dphi))
+        tol = self.plan.settings["no_slip"]
+        out: dict[str, Any] = {**{f"dphi{j + 1}": float(dphi[j]) for j in range(4)},
+                               "encoder_distance": rolling, "kin_forward": float(kin[0]),
+                               "kin_left": float(kin[1]), "kin_yaw": float(kin[2])}
+        if step.measure == "distance":
+            m = float(measured)
+            slip = m - abs(rolling)
+            size = abs(m)
+            out.update(measured_distance=m)
+        else:
+            fwd, left = (float(v) for v in measured)
+            slip = math.hypot(fwd - rolling, left)
+            size = math.hypot(fwd, left)
+            out.update(measured_forward=fwd, measured_left=left,
+                       kin_residual=math.hypot(fwd - kin[0], left - kin[1]))
+        out["slip"] = slip
+        out["no_slip_tolerance"] = tol["tolerance"] + tol["relative_tolerance"] * size
+        out["no_slip"] = bool(abs(slip) <= out["no_slip_tolerance"])
+        return out
+
+    def _trajectory(self, step: Step) -> dict[str, Any]:
+        self._stop()
+        answer = self.operator.start_mark(step)
+        self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
+                                    self.operator.source)
+        self._after_operator()
+        data = StepData()
+        t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
+        self._stop()
+        _, t_end = self._run_for(step, data, step.settle, None)
+        t = np.asarray(data.t)
+        has_current = all(v is not None for v in data.I) and all(v is not None for v in data.V)
+        rec: dict[str, Any] = {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
+                               "has_current": bool(has_current)}
+        if has_current and len(t) > 1:
+            V = np.asarray(data.V, dtype=float)
+            I = np.asarray(data.I, dtype=float)
+            rec.update(energy=float(np.trapezoid(V * I, t)), charge=float(np.trapezoid(I, t)),
+                       I_batt_mean=float(I.mean()), I_batt_peak=float(np.abs(I).max()))
+        else:
+            rec.update(energy=None, charge=None, I_batt_mean=None, I_batt_peak=None)
+        return rec
+
+
+def safe_stop(board: Any, attempts: int = 3) -> bool:
+    """Stop the motors, retrying; never raises (used on every exit path). True if confirmed."""
+    for _ in range(attempts):
+        try:
+            board.stop()
+            return True
+        except KeyboardInterrupt:
+            continue
+        except Exception:  # noqa: BLE001 - the link may be half broken; try again
+            continue
+    return False
+
+
+def sigterm_as_interrupt() -> Callable[[], None]:
+    """Make SIGTERM behave like Ctrl-C for the duration of a run; returns a restore function."""
+    def handler(signum, frame):  # noqa: ARG001
+        raise Terminated()
+
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not in the main thread
+        return lambda: None
+    return lambda: signal.signal(signal.SIGTERM, old)

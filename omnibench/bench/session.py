@@ -1,0 +1,284 @@
+"""One procedure run from the command line's point of view: validate everything, open the
+board, create (or resume) the run directory, run, and leave the motors stopped and the run
+marked on every exit path.
+
+Order matters: the robot file, the procedure file, the limits and the answers file are all
+checked before the port is opened, so a bad input never moves a motor.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from omnibench.bench.procedure import Plan, Step, default_procedure_path, load_plan, stall_current
+from omnibench.errors import UserError
+
+LABELS = {
+    "upside_down_sweep": "III.i upside-down sweep",
+    "forward_runs": "III.ii forward/backward runs",
+    "lateral_runs": "III.iii lateral runs",
+    "energy_trajectories": "IV energy trajectories",
+}
+
+
+def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
+    """(Robot, its TOML text as run, its path or 'default')."""
+    from omnibench.model.robot import DEFAULT_ROBOT_FILE, load_robot
+
+    path = Path(robot_file) if robot_file else DEFAULT_ROBOT_FILE
+    robot = load_robot(path)
+    return robot, path.read_text(encoding="utf-8"), str(path) if robot_file else f"default ({path.name})"
+
+
+def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
+    """What a dry run prints: steps, driving time bound, peak voltage and current, actions."""
+    from omnibench.bench.operator import actions_for
+
+    world = None
+    n_actions = 0
+    for s in plan.steps:
+        n_actions += len(actions_for(world, s.world)) + (1 if s.kind in ("timed", "trajectory") else 0)
+        world = s.world
+    peak_u = plan.peak_duty
+    peak_batt = 0.0
+    for s in plan.steps:
+        for _, u in s.schedule:
+            # every motor stalled at once: I_batt = sum(u_i * i_i) + I_0 with i_i = u_i V / R_a
+            peak_batt = max(peak_batt, sum(abs(x) * stall_current(robot, x) for x in u) + robot.I_0)
+    return {
+        "procedure": plan.procedure,
+        "procedure_file": plan.path,
+        "steps": len(plan.steps),
+        "max_driving_time_s": plan.max_duration,
+        "operator_actions": n_actions,
+        "measurements": sum(1 for s in plan.steps if s.measure),
+        "peak_duty": peak_u,
+        "peak_voltage_V": peak_u * robot.V_batt,
+        "peak_motor_current_A": stall_current(robot, peak_u),
+        "peak_battery_current_A": peak_batt,
+        "limits": {"max_duty": robot.max_duty, "max_current_A": robot.max_current},
+    }
+
+
+def format_plan(plan: Plan, robot: Any) -> list[str]:
+    s = plan_summary(plan, robot)
+    lines = [f"{LABELS[plan.procedure]} from {plan.path}: {s['steps']} steps"]
+    world = None
+    for st in plan.steps:
+        if st.world != world:
+            lines.append(f"  -- {st.world.describe()}")
+            world = st.world
+        bound = "at most " if st.kind == "hold" else ""
+        extra = f", then {st.measure} measured" if st.measure else ""
+        lines.append(f"  {st.index:3d}  {st.label}: {bound}{st.max_time:.1f} s{extra}")
+    lines.append(f"driving time: at most {s['max_driving_time_s']:.0f} s of board time "
+                 f"(plus {s['operator_actions']} operator actions)")
+    lines.append(f"peak voltage {s['peak_voltage_V']:.1f} V (duty {s['peak_duty']:.2f}, limit "
+                 f"{robot.max_duty:g}); peak motor current {s['peak_motor_current_A']:.1f} A at stall "
+                 f"(limit {robot.max_current:g} A); battery at most {s['peak_battery_current_A']:.1f} A")
+    return lines
+
+
+def summarise(procedure: str, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Lab-level results of a run's completed steps (used for the report and --json)."""
+    out: dict[str, Any] = {}
+    if procedure == "upside_down_sweep":
+        out["steady_steps"] = sum(1 for r in records if r.get("steady"))
+        out["not_steady_steps"] = [r["step"] for r in records if not r.get("steady")]
+    elif procedure in ("forward_runs", "lateral_runs"):
+        slips = [abs(r["slip"]) for r in records if r.get("slip") is not None]
+        out["no_slip_passed"] = sum(1 for r in records if r.get("no_slip"))
+        out["no_slip_failed"] = [r["step"] for r in records if r.get("no_slip") is False]
+        out["max_abs_slip_m"] = max(slips) if slips else None
+    elif procedure == "energy_trajectories":
+        out["energy_J"] = {f"{r['trajectory']}#{r['repetition']}": r.get("energy") for r in records}
+    return out
+
+
+def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
+    if procedure == "upside_down_sweep":
+        bad = summary["not_steady_steps"]
+        return [f"steady state reached in {summary['steady_steps']}/{n} steps"
+                + (f" (not steady: steps {bad})" if bad else "")]
+    if procedure == "forward_runs":
+        return [f"no-slip check: {summary['no_slip_passed']}/{n} runs passed"
+                + (f", largest |encoder - tape| {summary['max_abs_slip_m'] * 1000:.1f} mm"
+                   if summary["max_abs_slip_m"] is not None else "")]
+    if procedure == "lateral_runs":
+        slipped = len(summary["no_slip_failed"])
+        return [f"roller slip reported on {slipped}/{n} runs"
+                + (f" (largest {summary['max_abs_slip_m']:.3f} m between rolling distance and tape)"
+                   if summary["max_abs_slip_m"] is not None else "")]
+    if procedure == "energy_trajectories":
+        return [f"{k}: " + (f"{v:.1f} J" if v is not None else "no battery current logged")
+                for k, v in summary["energy_J"].items()]
+    return []
+
+
+def run_command(
+    procedure: str,
+    *,
+    port: str | None,
+    procedure_file: str | Path | None,
+    robot_file: str | Path | None,
+    out: str | Path,
+    dry_run: bool = False,
+    resume: str | Path | None = None,
+    answers: str | Path | None = None,
+    echo: Callable[[str], None] = print,
+    progress: bool = True,
+    measurement_noise: float | None = None,
+    timeout: float = 2.0,
+) -> dict[str, Any]:
+    """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
+
+    Raises UserError for bad input before any motor moves; KeyboardInterrupt propagates after
+    the motors are stopped and the run is marked aborted.
+    """
+    from omnibench.bench.operator import AnswersOperator
+
+    # 1. everything from files, before any port is touched
+    if resume is not None:
+        run_dir = Path(resume)
+        if not (run_dir / "run.json").is_file():
+            raise UserError(f"{run_dir}: not a run directory (no run.json) to resume")
+        meta = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+        if meta.get("procedure") != procedure:
+            raise UserError(f"{run_dir}: is a {meta.get('procedure')} run; resume it with its own command")
+        if meta.get("status") == "complete":
+            raise UserError(f"{run_dir}: run is already complete; nothing to resume")
+        robot, robot_text, robot_name = load_robot_file(run_dir / "robot.toml")
+        robot_name = meta.get("robot_file") or robot_name
+        plan = load_plan(run_dir / "procedure.toml", robot, expect=procedure)
+        if meta.get("steps_planned") not in (None, len(plan.steps)):
+            raise UserError(f"{run_dir}: procedure.toml expands to {len(plan.steps)} steps, "
+                            f"run.json planned {meta.get('steps_planned')}")
+    else:
+        robot, robot_text, robot_name = load_robot_file(robot_file)
+        pfile = Path(procedure_file) if procedure_file else default_procedure_path(procedure)
+        plan = load_plan(pfile, robot, expect=procedure)
+    answer_op = AnswersOperator(answers) if answers else None
+    if answer_op is not None:
+        answer_op.check(plan.steps)
+    summary = plan_summary(plan, robot)
+    if dry_run:
+        for line in format_plan(plan, robot):
+            echo(line)
+        return {"dry_run": True, **summary}
+    if not port:
+        raise UserError("no --port given (a serial device such as /dev/ttyACM0, or sim:// for the simulated robot)")
+
+    # 2. the board
+    from omnibench.bench.board import open_bench_board
+
+    with open_bench_board(port, timeout=timeout) as board:
+        return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
+                             resume=resume, answer_op=answer_op, echo=echo, progress=progress,
+                             measurement_noise=measurement_noise)
+
+
+def _choose_operator(board: Any, plan: Plan, answer_op: Any, measurement_noise: float | None) -> Any:
+    from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
+
+    if getattr(board, "is_simulator", False):
+        op = plan.settings.get("operator", {})
+        noise = op.get("measurement_noise", 0.002) if measurement_noise is None else measurement_noise
+        return SimulatedOperator(board, noise=noise, seed=op.get("seed", 1), measurer=answer_op)
+    if answer_op is not None:
+        return answer_op
+    return ConsoleOperator()
+
+
+def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot_name: str, board: Any, *,
+                  port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
+                  echo: Callable[[str], None], progress: bool,
+                  measurement_noise: float | None) -> dict[str, Any]:
+    import click
+
+    from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
+    from omnibench.runs import RunWriter
+    from omnibench.runs.store import _read_jsonl
+
+    hello = dict(getattr(board, "hello", {}) or {})
+    cpr = hello.get("counts_per_rev") or robot.counts_per_rev
+    if plan.procedure == "energy_trajectories" and plan.settings.get("ammeter_required") \
+            and not getattr(board, "has_battery_current", False):
+        raise UserError(f"{plan.path}: [ammeter] required = true, but the board reports no battery current sensor")
+    if resume is not None:
+        writer = RunWriter.resume(Path(resume), board=hello)
+        done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
+        todo = [s for s in plan.steps if s.index not in done]
+        echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
+    else:
+        writer = RunWriter.create(
+            Path(out), procedure, procedure_text=plan.text, procedure_file=str(plan.path),
+            robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
+            port=port, counts_per_rev=cpr,
+            extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
+                   "settings": plan.settings},
+        )
+        todo = list(plan.steps)
+        echo(f"{LABELS[procedure]}: run {writer.path}")
+    operator = _choose_operator(board, plan, answer_op, measurement_noise)
+    writer.update(operator=operator.source)
+    restore = sigterm_as_interrupt()
+    total = sum(s.max_time for s in todo)
+    bar_ctx = (click.progressbar(length=max(int(total * 10), 1), label=LABELS[procedure], file=None,
+                                 show_eta=True, show_percent=True) if progress and todo else None)
+    done_ds = [0.0]
+
+    def advance(dt: float, label: str) -> None:
+        if bar_ctx is not None:
+            done_ds[0] += dt * 10
+            step = int(done_ds[0])
+            if step:
+                bar_ctx.update(step)
+                done_ds[0] -= step
+
+    runner = Runner(plan, robot, board, writer, operator, progress=advance,
+                    echo=(lambda line: None) if bar_ctx is not None else echo)
+    status, reason = "failed", "unknown"
+    try:
+        if bar_ctx is not None:
+            bar_ctx.__enter__()
+        try:
+            runner.run(todo)
+        finally:
+            if bar_ctx is not None:
+                bar_ctx.render_finish()
+        status, reason = "complete", None
+    except KeyboardInterrupt:
+        status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
+        raise
+    except UserError as exc:
+        status, reason = "failed", str(exc)
+        raise
+    except Exception as exc:
+        status, reason = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
+        raise
+    finally:
+        stopped = safe_stop(board)
+        try:
+            writer.event("motors_stopped", confirmed=stopped)
+        except Exception:  # noqa: BLE001
+            pass
+        writer.finish(status, reason)
+        restore()
+        if status != "complete":
+            echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
+                 f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
+                                                   if status == "aborted" else ""))
+    from omnibench.runs import read_run
+
+    run = read_run(writer.path)
+    recs = run.steps.to_dict("records")
+    res = summarise(procedure, recs)
+    for line in summary_lines(procedure, res, len(recs)):
+        echo(line)
+    echo(f"run complete: {writer.path} ({len(run.steps)} steps, {len(run.samples)} samples)")
+    return {"run": str(writer.path), "status": "complete", "procedure": procedure,
+            "steps": int(len(run.steps)), "samples": int(len(run.samples)), **res}
