@@ -185,7 +185,8 @@ def simulate_batch(
     """Simulate B (robot, scenario) pairs over [0, t_end] with duties u_cmd ((K,4) shared or (B,K,4))."""
     robots = [robots] if isinstance(robots, Robot) else list(robots)
     scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
-    B = max(len(robots), len(scenarios))
+    n_cmd_sets = np.asarray(u_cmd, dtype=float).reshape(-1, np.shape(t_cmd)[0], 4).shape[0]
+    B = max(len(robots), len(scenarios), n_cmd_sets)
     if len(robots) == 1:
         robots = robots * B
     if len(scenarios) == 1:
