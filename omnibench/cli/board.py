@@ -1,0 +1,84 @@
+"""`omnibench board info|monitor`: who is on the port, and its live telemetry."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import click
+
+from omnibench.errors import UserError
+
+PORT_HELP = "Serial port or URL: /dev/ttyACM0, sim://?seed=1, socket://host:port, hwgrep://VID:PID."
+
+
+@click.group(name="board")
+def command() -> None:
+    """Talk to a motor board: identity, live telemetry."""
+
+
+@command.command(name="info")
+@click.option("--port", required=True, help=PORT_HELP)
+@click.option("--timeout", type=float, default=2.0, show_default=True, help="Handshake timeout, s.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def info(port: str, timeout: float, as_json: bool) -> None:
+    """Handshake with the board and print its identity, protocol and link round trip."""
+    from omnibench.link.board import Board
+
+    with Board.open(port, timeout=timeout, strict=False) as board:
+        hello = board.hello
+        assert hello is not None
+        rtt = [board.ping() for _ in range(5)] if board.version_ok else []
+        out = dict(hello.as_dict(), port=port, protocol=board.spec.name,
+                   host_protocol_version=board.spec.version, compatible=board.version_ok,
+                   ping_ms=round(1e3 * sorted(rtt)[len(rtt) // 2], 3) if rtt else None)
+    if as_json:
+        click.echo(json.dumps(out, indent=1))
+        return
+    click.echo(f"board {out['board_id']} on {port}: firmware {out['firmware_version']}, "
+               f"protocol {out['protocol']} v{out['protocol_version']} "
+               f"({'compatible' if out['compatible'] else 'INCOMPATIBLE with this tool, v' + str(out['host_protocol_version'])})")
+    click.echo(f"  boot id {out['boot_id']}, encoder {out['counts_per_rev']} counts/rev, "
+               f"telemetry up to {out['max_telemetry_rate']} Hz")
+    click.echo(f"  capabilities: {', '.join(out['capabilities']) or 'none'}")
+    if out["ping_ms"] is not None:
+        click.echo(f"  command round trip: {out['ping_ms']:.2f} ms (median of 5)")
+
+
+@command.command(name="monitor")
+@click.option("--port", required=True, help=PORT_HELP)
+@click.option("--duration", type=float, default=10.0, show_default=True, help="Board time to watch, s.")
+@click.option("--rate", type=int, default=50, show_default=True, help="Telemetry rate, Hz.")
+@click.option("--every", type=float, default=0.5, show_default=True, help="Print a line every this many s of board time.")
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per printed sample.")
+def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) -> None:
+    """Show live telemetry (motors stay stopped): encoders, currents, battery, faults."""
+    from omnibench.link.board import Board
+
+    if duration <= 0 or every <= 0:
+        raise UserError("--duration and --every must be positive seconds")
+    with Board.open(port) as board:
+        board.configure(telemetry_hz=rate)
+        next_print = -math.inf
+        n = 0
+        t_wall = time.monotonic()
+        for s in board.samples(duration):
+            n += 1
+            if s.t < next_print:
+                continue
+            next_print = s.t + every
+            faults = board.fault_names(s.faults)
+            if as_json:
+                click.echo(json.dumps({"t": s.t, "seq": s.seq, "encoder": s.encoder, "motor_current": s.motor_current,
+                                       "battery_voltage": s.battery_voltage, "battery_current": s.battery_current,
+                                       "faults": faults, "duty": s.duty}))
+            else:
+                click.echo(f"t={s.t:9.3f} s  enc {' '.join(f'{c:8d}' for c in s.encoder)}  "
+                           f"I {' '.join(f'{i:6.3f}' for i in s.motor_current)} A  "
+                           f"{s.battery_voltage:6.2f} V {s.battery_current:6.3f} A  "
+                           f"faults {','.join(faults) or '-'}")
+        st = board.stats
+        if not as_json:
+            click.echo(f"{n} samples in {duration:g} s of board time ({time.monotonic() - t_wall:.1f} s wall), "
+                       f"{st.lost} lost, {st.crc_errors} CRC errors, {st.framing_errors} framing errors")

@@ -1,0 +1,564 @@
+"""The board client: everything a procedure needs to drive a motor board over a serial URL.
+
+    with Board.open("sim://?seed=1") as board:          # or /dev/ttyACM0, socket://..., hwgrep://...
+        board.configure(telemetry_hz=200, watchdog_s=0.5)
+        board.reset_encoders()
+        board.set_duties([0.3, 0.3, 0.3, 0.3])
+        for s in board.samples(2.0):                    # 2 s of BOARD time
+            ...                                         # s.t, s.encoder, s.motor_current, ...
+        board.stop()
+    # leaving the block always stops the motors (also on exceptions and Ctrl-C)
+
+Timing follows the board's clock (telemetry time stamps), never the host's wall clock,
+so the same procedure runs in real time on the robot and faster on the simulator.
+
+Reading is pull-based: bytes are read only inside the client's calls, in the caller's
+thread. While reading, the client sends a PING whenever a quarter of the watchdog timeout
+of board time has passed since it last sent anything; a small background thread does the
+same on the wall clock for the time the caller spends elsewhere. So the board's watchdog
+never trips during a run, and does trip if this process dies or hangs.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from typing import Iterator, Protocol, Sequence
+
+import serial
+
+from omnibench.errors import BoardError, UserError
+from omnibench.link.codec import Codec, CodecError, Message
+from omnibench.link.framing import FrameError
+from omnibench.link.spec import DEFAULT_PROTOCOL, load_protocol
+from omnibench.link.types import Hello, LinkStats, Pose, Sample
+from omnibench.link.urls import open_url
+
+READ_TIMEOUT_S = 0.05       #: wall-clock timeout of one blocking port read
+ACK_TIMEOUT_S = 0.3         #: wall-clock wait for an ACK before sending again
+ACK_TIMEOUT_BOARD_S = 0.1   #: ... or this much board time (telemetry keeps arriving)
+RETRIES = 3                 #: extra attempts per command
+STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
+PROBE_S = 0.45              #: probe unanswered for this long: the link is lost
+MODES = ("ground", "upside_down")
+
+
+class Ammeter(Protocol):
+    """Anything with `measure() -> float` (A), e.g. link.ammeter.ScpiAmmeter."""
+
+    def measure(self) -> float: ...
+
+
+class Board:
+    """A motor board on a serial URL: handshake, commands with ACKs, telemetry, heartbeat.
+
+    Open with `Board.open(url)`; use as a context manager so the motors stop on every
+    exit path. Methods raise `BoardError` (one-line message, exit code 3) when the board
+    misbehaves and `UserError` for bad arguments.
+    """
+
+    def __init__(self, port: serial.SerialBase, codec: Codec, url: str, *, heartbeat: bool = True) -> None:
+        self.url = url
+        self.codec = codec
+        self.spec = codec.spec
+        self.hello: Hello | None = None
+        self.stats = LinkStats()
+        self.version_ok = False
+        self.reset_detected = False
+        self._port = port
+        self._deframer = codec.deframer()
+        self._io = threading.RLock()        # reading and decoding
+        self._tx = threading.Lock()         # writing (heartbeat thread writes too)
+        self._tx_seq = 0
+        self._acks: dict[int, Message] = {}
+        self._replies: dict[str, Message] = {}
+        self._queue: deque[Sample] = deque()
+        self._last_seq: int | None = None
+        self._t_wraps = 0
+        self._t_last_raw: int | None = None
+        self._board_time = 0.0
+        self._last_tx_board = 0.0
+        self._last_tx_wall = time.monotonic()
+        self._last_rx_wall = time.monotonic()
+        self._telemetry_hz = 0.0
+        self._watchdog_s = float(self.spec.board.get("default_watchdog_s", 0.5))
+        self._heartbeat_on = heartbeat
+        self._ammeter: Ammeter | None = None
+        self._ammeter_period = 0.0
+        self._ammeter_next = 0.0
+        self._lost_error: BoardError | None = None
+        self._closed = False
+        self._hb_stop = threading.Event()
+        self._hb_thread: threading.Thread | None = None
+
+    # ================================================================== opening
+    @classmethod
+    def open(cls, url: str, *, timeout: float = 2.0, baudrate: int | None = None,
+             protocol: str = DEFAULT_PROTOCOL, strict: bool = True, heartbeat: bool = True) -> "Board":
+        """Open `url` (any pyserial URL), handshake within `timeout` s, stop the motors.
+
+        `baudrate` defaults to the protocol's ([board].baudrate, 115200). With
+        `strict` (default) a board speaking another protocol version raises BoardError
+        and nothing is sent to it; with strict=False the board opens (for `board info`)
+        but refuses to drive the motors. `heartbeat=False` never sends PINGs on its own
+        (only for testing the board's watchdog).
+        """
+        spec = load_protocol(protocol)
+        baud = int(baudrate or spec.board.get("baudrate", 115200))
+        port = open_url(url, baudrate=baud, timeout=READ_TIMEOUT_S)
+        board = cls(port, Codec(spec), url, heartbeat=heartbeat)
+        board._strict = strict
+        try:
+            board._handshake(timeout, baud)
+        except BaseException:
+            board._close_port()
+            raise
+        return board
+
+    def _handshake(self, timeout: float, baud: int) -> None:
+        try:
+            self._port.reset_input_buffer()
+        except (serial.SerialException, OSError):
+            pass
+        deadline = time.monotonic() + timeout
+        hello: Message | None = None
+        ack_ok = False
+        seq = None
+        while time.monotonic() < deadline:
+            if seq is None or time.monotonic() - self._last_tx_wall > ACK_TIMEOUT_S:
+                seq = self._send("HELLO_REQ")
+            self._pump(wait=True, check=False)
+            hello = self._replies.get("HELLO") or hello
+            ack_ok = ack_ok or seq in self._acks
+            if hello is not None and ack_ok:
+                break
+        if hello is None:
+            raise BoardError(
+                f"no HELLO from a board on {self.url} within {timeout:g} s: check the port, the baud rate "
+                f"(board expects {self.spec.board.get('baudrate', 115200)}, opened at {baud}), that the board "
+                f"is powered and runs {self.spec.name} firmware")
+        self.hello = self._to_hello(hello)
+        self._replies.pop("HELLO", None)
+        self._acks.clear()
+        self.version_ok = self.hello.protocol_version == self.spec.version
+        if not self.version_ok:
+            if self._strict:
+                raise BoardError(self._strict_fail_message())
+            return
+        self._command("STOP")
+        self._command("CONFIGURE", {"watchdog": self._watchdog_s, "telemetry_rate": 0})
+        self._start_heartbeat()
+
+    _strict = True  # set by open(): refuse a board speaking another protocol version
+
+    def _strict_fail_message(self) -> str:
+        assert self.hello is not None
+        return (f"board on {self.url} speaks {self.spec.name} protocol v{self.hello.protocol_version}, "
+                f"this tool speaks v{self.spec.version}: update the firmware or omnibench "
+                "(motors not driven)")
+
+    def _to_hello(self, m: Message) -> Hello:
+        f = m.fields
+        return Hello(
+            protocol_version=int(f["protocol_version"]),
+            firmware_version=tuple(int(v) for v in f["firmware_version"]),  # type: ignore[arg-type]
+            board_id=int(f["board_id"]),
+            boot_id=int(f["boot_id"]),
+            counts_per_rev=int(f["counts_per_rev"]),
+            max_telemetry_rate=int(f["max_telemetry_rate"]),
+            capabilities=tuple(self.spec.flag_names("capabilities", int(f["capabilities"]))),
+        )
+
+    # ================================================================== context, stop, close
+    def __enter__(self) -> "Board":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.stop(raise_errors=exc_type is None)
+        finally:
+            self.close()
+
+    def stop(self, *, raise_errors: bool = True) -> None:
+        """Stop all four motors now; the one stop used on every exit path.
+
+        Sends STOP (always accepted by the board, even with faults latched) and waits for
+        its ACK. With `raise_errors=False` (exit paths that are already failing) it tries
+        its best and never raises. Safe to call many times and on a lost link.
+        """
+        if self._closed or self.hello is None or not self.version_ok:
+            return
+        try:
+            self._command("STOP", check_reset=False)
+        except (BoardError, serial.SerialException, OSError):
+            if raise_errors:
+                raise
+
+    def close(self) -> None:
+        """Stop the heartbeat and close the port (call stop() first, or use `with`)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._hb_stop.set()
+        if self._hb_thread is not None and self._hb_thread is not threading.current_thread():
+            self._hb_thread.join(timeout=1.0)
+        self._close_port()
+
+    def _close_port(self) -> None:
+        try:
+            self._port.close()
+        except (serial.SerialException, OSError):
+            pass
+
+    # ================================================================== commands
+    def set_duties(self, duties: Sequence[float]) -> None:
+        """Apply four duties (FL, FR, RL, RR), each in [-1, 1]; held until changed or stopped."""
+        u = [float(x) for x in duties]
+        if len(u) != 4 or not all(math.isfinite(x) and -1.0 <= x <= 1.0 for x in u):
+            raise UserError(f"duties must be 4 numbers in [-1, 1], got {list(duties)!r}")
+        self._require_drivable()
+        self._command("SET_DUTIES", {"duty": u})
+
+    def configure(self, *, telemetry_hz: float | None = None, watchdog_s: float | None = None) -> None:
+        """Set the telemetry rate (Hz, 0 = off) and/or the watchdog timeout (s); None keeps it."""
+        hz = self._telemetry_hz if telemetry_hz is None else float(telemetry_hz)
+        wd = self._watchdog_s if watchdog_s is None else float(watchdog_s)
+        max_hz = self.hello.max_telemetry_rate if self.hello else 1000
+        if not (0 <= hz <= max_hz and float(int(hz)) == hz):
+            raise UserError(f"telemetry rate must be a whole number of Hz in 0..{max_hz}, got {telemetry_hz!r}")
+        if not 0.02 <= wd <= 10.0:
+            raise UserError(f"watchdog timeout must be in 0.02..10 s, got {watchdog_s!r}")
+        self._command("CONFIGURE", {"watchdog": wd, "telemetry_rate": int(hz)})
+        self._telemetry_hz, self._watchdog_s = hz, wd
+
+    def reset_encoders(self) -> None:
+        """Set the four encoder counters to zero."""
+        self._command("RESET_ENCODERS")
+
+    def clear_faults(self) -> None:
+        """Clear latched faults (e.g. after the watchdog fired); motors stay stopped."""
+        self._command("CLEAR_FAULTS")
+
+    def ping(self) -> float:
+        """Command round trip: wall-clock seconds from sending PING to its ACK."""
+        t0 = time.perf_counter()
+        self._command("PING")
+        return time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ simulator only
+    def sim_set_world(self, *, mode: str | None = None, payload: float | None = None,
+                      wheel_mass: Sequence[float] | None = None) -> None:
+        """Simulated operator: put the robot `mode` ("ground" | "upside_down"), set the
+        payload on top (kg) and/or the mass of each mounted wheel (kg, FL FR RL RR).
+        Only with the motors stopped. Real firmware refuses (BoardError)."""
+        mask, values = 0, {"mode": 0, "payload": 0.0, "wheel_mass": [0.0] * 4}
+        bits = self.spec.flags["world_mask"]
+        if mode is not None:
+            if mode not in MODES:
+                raise UserError(f"mode must be 'ground' or 'upside_down', not {mode!r}")
+            mask |= 1 << bits["MODE"]
+            values["mode"] = MODES.index(mode)
+        if payload is not None:
+            if not (math.isfinite(payload) and 0 <= payload <= 4e6):
+                raise UserError(f"payload must be a mass in kg >= 0, got {payload!r}")
+            mask |= 1 << bits["PAYLOAD"]
+            values["payload"] = float(payload)
+        if wheel_mass is not None:
+            wm = [float(m) for m in wheel_mass]
+            if len(wm) != 4 or not all(0 < m <= 6.5 for m in wm):
+                raise UserError(f"wheel_mass needs 4 masses in kg in (0, 6.5], got {list(wheel_mass)!r}")
+            mask |= 1 << bits["WHEEL_MASS"]
+            values["wheel_mass"] = wm
+        values["mask"] = mask
+        self._command("SIM_SET_WORLD", values)
+
+    def sim_truth(self) -> Pose:
+        """Simulated tape measure: the robot's true pose (m, m, rad) now. Real firmware refuses."""
+        self._command("SIM_GET_TRUTH", reply="SIM_TRUTH")
+        m = self._replies.pop("SIM_TRUTH")
+        f = m.fields
+        return Pose(x=f["x"], y=f["y"], psi=f["psi"], mode=self.spec.enum_name("mode", f["mode"]).lower(),
+                    t=self._unwrap_peek(f["time"]))
+
+    # ================================================================== telemetry
+    @property
+    def board_time(self) -> float:
+        """Latest board time seen (s since boot), from telemetry and ACK time stamps."""
+        return self._board_time
+
+    def read_samples(self) -> list[Sample]:
+        """Every sample received so far and not yet returned (reads what the port holds)."""
+        with self._io:
+            self._pump(wait=False)
+            out = list(self._queue)
+            self._queue.clear()
+            return out
+
+    def samples(self, duration: float) -> Iterator[Sample]:
+        """Yield samples until `duration` s of BOARD time after the latest board time seen.
+
+        Yields the queued samples first (none is lost between calls), then new ones; ends
+        after the first sample at or beyond the end time. Raises BoardError if telemetry
+        is off, the link is lost (within about a second), or the board resets.
+        """
+        if self._telemetry_hz <= 0:
+            raise BoardError("telemetry is off: call configure(telemetry_hz=...) before reading samples")
+        t_end = self._board_time + float(duration)
+        probe_at: float | None = None
+        while True:
+            with self._io:
+                while self._queue:
+                    s = self._queue.popleft()
+                    yield s
+                    if s.t >= t_end:
+                        return
+                got = self._pump(wait=True)
+                if got:
+                    probe_at = None
+                    continue
+                idle = time.monotonic() - self._last_rx_wall
+                if idle > STALL_S and probe_at is None:
+                    probe_at = time.monotonic()
+                    self._send("HELLO_REQ")          # a reset board answers with a new boot id
+                elif probe_at is not None and time.monotonic() - probe_at > PROBE_S:
+                    raise self._lost(f"no data from the board for {idle:.1f} s")
+
+    def wait(self, duration: float) -> list[Sample]:
+        """All samples over the next `duration` s of board time (see samples())."""
+        return list(self.samples(duration))
+
+    def attach_ammeter(self, ammeter: Ammeter | None, period_s: float = 0.05) -> None:
+        """Read an external ammeter every `period_s` of board time while reading samples.
+
+        Each reading is stored in `Sample.ammeter_current` of the telemetry sample that
+        triggered it: it is taken within one ammeter round trip after that sample's
+        board time (exactly at it on the fast simulator). None detaches.
+        """
+        self._ammeter = ammeter
+        self._ammeter_period = float(period_s)
+        self._ammeter_next = self._board_time
+
+    def fault_names(self, faults: int) -> list[str]:
+        """Names of the fault bits set in `faults` (e.g. ["WATCHDOG"])."""
+        return self.spec.flag_names("faults", faults)
+
+    # ================================================================== internals: I/O
+    def _require_drivable(self) -> None:
+        if not self.version_ok:
+            assert self.hello is not None
+            raise BoardError(self._strict_fail_message())
+        if self.reset_detected:
+            raise BoardError(f"board on {self.url} reset during the session: open it again before driving")
+
+    def _send(self, name: str, values: dict | None = None) -> int:
+        """Write one frame; returns its sequence number."""
+        if self._lost_error is not None:
+            raise self._lost_error
+        try:
+            with self._tx:
+                seq = self._tx_seq
+                self._tx_seq = (seq + 1) & 0xFFFF
+                wire = self.codec.frame(name, seq, values)
+                self._port.write(wire)
+                self.stats.bytes_out += len(wire)
+                self._last_tx_wall = time.monotonic()
+                self._last_tx_board = self._board_time
+        except CodecError as exc:
+            raise UserError(str(exc)) from None
+        except (serial.SerialException, OSError) as exc:
+            raise self._lost(f"write failed: {exc}") from None
+        return seq
+
+    def _command(self, name: str, values: dict | None = None, *, reply: str | None = None,
+                 check_reset: bool = True) -> Message:
+        """Send a command, wait for its ACK (resending up to RETRIES times), check status."""
+        with self._io:
+            if reply:
+                self._replies.pop(reply, None)
+            sent: list[int] = []
+            for attempt in range(RETRIES + 1):
+                if attempt:
+                    self.stats.retries += 1
+                sent.append(self._send(name, values))
+                wall_end = time.monotonic() + ACK_TIMEOUT_S
+                board_end = self._board_time + ACK_TIMEOUT_BOARD_S
+                while True:
+                    ack = next((self._acks.pop(s) for s in sent if s in self._acks), None)
+                    if ack is not None and (reply is None or reply in self._replies):
+                        return self._check_ack(name, ack)
+                    if time.monotonic() > wall_end or self._board_time > board_end:
+                        break
+                    self._pump(wait=True, check=check_reset)
+            raise self._lost(f"no acknowledgement for {name} after {RETRIES + 1} tries")
+
+    def _check_ack(self, name: str, ack: Message) -> Message:
+        status = self.spec.enum_name("status", int(ack.fields["status"]))
+        if status == "OK":
+            return ack
+        m = self.spec.message(name)
+        if status == "UNSUPPORTED" and m.sim_only:
+            raise BoardError(f"{name} is simulator-only and the board on {self.url} is real firmware")
+        if status == "FAULT_ACTIVE":
+            faults = self.fault_names(self._last_faults())
+            raise BoardError(f"board refused {name}: faults {', '.join(faults) or '?'} latched "
+                             "(find the cause, then clear_faults())")
+        if status == "BAD_STATE":
+            raise BoardError(f"board refused {name} in its present state (stop the motors first)")
+        raise BoardError(f"board answered {name} with {status}")
+
+    def _last_faults(self) -> int:
+        return self._queue[-1].faults if self._queue else self._faults_seen
+
+    _faults_seen = 0
+
+    def _lost(self, why: str) -> BoardError:
+        if self._lost_error is None:
+            self._lost_error = BoardError(f"lost the board on {self.url}: {why} (check the cable and the "
+                                          "board's power)")
+        return self._lost_error
+
+    def _pump(self, wait: bool, check: bool = True) -> int:
+        """Read what the port has (blocking up to READ_TIMEOUT_S if `wait`); decode it.
+
+        Returns the number of frames decoded. Raises BoardError on a lost link or, with
+        `check`, on a detected board reset.
+        """
+        if self._lost_error is not None:
+            raise self._lost_error
+        try:
+            n = self._port.in_waiting
+            data = self._port.read(n) if n else (self._port.read(1) if wait else b"")
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            # pyserial raises TypeError/AttributeError when the device vanished under it.
+            raise self._lost(f"read failed: {exc}") from None
+        frames = 0
+        if data:
+            self._last_rx_wall = time.monotonic()
+            self.stats.bytes_in += len(data)
+            for body in self._deframer.feed(data):
+                frames += 1
+                self._dispatch(body)
+        ds = self._deframer.stats
+        self.stats.crc_errors = ds.crc_errors
+        self.stats.framing_errors = ds.framing_errors + self._bad_frames
+        if check and self.reset_detected and not self._reset_reported:
+            self._reset_reported = True
+            raise BoardError(self._reset_message)
+        self._heartbeat_board_time()
+        return frames
+
+    _bad_frames = 0
+    _reset_reported = False
+    _reset_message = ""
+
+    def _dispatch(self, body: bytes) -> None:
+        try:
+            msg = self.codec.decode(body)
+        except FrameError:
+            self._bad_frames += 1
+            return
+        self.stats.frames += 1
+        self._track_seq(msg)
+        name = msg.name
+        if name == "TELEMETRY":
+            self._on_telemetry(msg)
+        elif name == "ACK":
+            self._set_time(msg.fields["time"])
+            self._acks[msg.fields["cmd_seq"]] = msg
+            if len(self._acks) > 256:
+                for k in list(self._acks)[:128]:
+                    del self._acks[k]
+        elif name == "HELLO":
+            self._on_hello(msg)
+        elif name == "EVENT":
+            code = self.spec.enum_name("event", msg.fields["code"])
+            self.stats.events.append((self._unwrap_peek(msg.fields["time"]), code, msg.fields["arg"]))
+        else:
+            self._replies[name] = msg
+
+    def _track_seq(self, msg: Message) -> None:
+        if msg.name == "HELLO" and self.hello is not None and msg.fields["boot_id"] != self.hello.boot_id:
+            self._last_seq = msg.seq
+            return
+        if self._last_seq is not None:
+            gap = (msg.seq - self._last_seq - 1) & 0xFFFF
+            if gap < 0x8000:
+                self.stats.lost += gap
+        self._last_seq = msg.seq
+
+    def _on_hello(self, msg: Message) -> None:
+        if self.hello is None:
+            self._replies["HELLO"] = msg
+            return
+        new = int(msg.fields["boot_id"])
+        if new != self.hello.boot_id and not self.reset_detected:
+            self.reset_detected = True
+            self._reset_message = (
+                f"board on {self.url} reset (boot id {self.hello.boot_id:08X} -> {new:08X}) after board time "
+                f"{self._board_time:.3f} s: it stopped the motors and forgot its settings; the run is incomplete")
+            self.stats.events.append((self._board_time, "RESET", new))
+
+    def _on_telemetry(self, msg: Message) -> None:
+        f = msg.fields
+        t = self._set_time(f["time"])
+        self._faults_seen = int(f["faults"])
+        amm = math.nan
+        if self._ammeter is not None and t >= self._ammeter_next - 1e-7:
+            self._ammeter_next = t + self._ammeter_period
+            try:
+                amm = float(self._ammeter.measure())
+            except (BoardError, serial.SerialException, OSError, ValueError):
+                amm = math.nan
+        self._queue.append(Sample(
+            t=t, seq=msg.seq, encoder=tuple(f["encoder"]), motor_current=tuple(f["motor_current"]),
+            battery_voltage=f["battery_voltage"], battery_current=f["battery_current"],
+            faults=int(f["faults"]), duty=tuple(f["duty"]), ammeter_current=amm))
+        self.stats.telemetry += 1
+
+    # ------------------------------------------------------------------ board clock
+    def _unwrap_peek(self, t_raw_s: float) -> float:
+        raw = int(round(t_raw_s * 1e6))
+        wraps = self._t_wraps
+        if self._t_last_raw is not None and raw < self._t_last_raw - 2**31:
+            wraps += 1
+        return (wraps * 2**32 + raw) * 1e-6
+
+    def _set_time(self, t_raw_s: float) -> float:
+        """Board time in s with the 32-bit µs wrap undone; updates `board_time`."""
+        raw = int(round(t_raw_s * 1e6))
+        if self._t_last_raw is not None and raw < self._t_last_raw - 2**31:
+            self._t_wraps += 1
+        self._t_last_raw = raw
+        t = (self._t_wraps * 2**32 + raw) * 1e-6
+        self._board_time = max(self._board_time, t)
+        return t
+
+    # ------------------------------------------------------------------ heartbeat
+    def _heartbeat_interval(self) -> float:
+        return self._watchdog_s / 4.0
+
+    def _heartbeat_board_time(self) -> None:
+        """While reading: PING when a quarter watchdog of board time passed since the last send."""
+        if (self._heartbeat_on and self.hello is not None and self.version_ok and not self._closed
+                and self._board_time - self._last_tx_board >= self._heartbeat_interval()):
+            try:
+                self._send("PING")
+            except BoardError:
+                pass
+
+    def _start_heartbeat(self) -> None:
+        if not self._heartbeat_on or self._hb_thread is not None:
+            return
+        self._hb_thread = threading.Thread(target=self._heartbeat_loop, name="omnibench-heartbeat", daemon=True)
+        self._hb_thread.start()
+
+    def _heartbeat_loop(self) -> None:
+        """Wall-clock heartbeat for when the caller is not reading (real time boards)."""
+        while not self._hb_stop.wait(self._heartbeat_interval() / 2):
+            if time.monotonic() - self._last_tx_wall >= self._heartbeat_interval():
+                try:
+                    self._send("PING")
+                except (BoardError, UserError):
+                    return

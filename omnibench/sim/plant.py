@@ -1,0 +1,60 @@
+"""The physics behind the simulated board: omnibench.model's Simulator, stepped on demand.
+
+Keeps a single-threaded numba kernel call per advance: the model's kernel is compiled
+with `parallel=True` for batches, and waking a thread pool for one trajectory costs
+milliseconds per call, far more than the physics of a 5 ms telemetry period.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numba
+import numpy as np
+
+from omnibench.model import Scenario, Simulator
+
+
+class Plant:
+    """The simulated robot in its world. Time is the board's time in s.
+
+    `advance_to(t, duties)` integrates with the duties held; `state` is the model's state
+    at the last time reached; `set_world` applies an operator action (robot at rest).
+    """
+
+    def __init__(self, robot, scenario: Scenario, dt: float = 1e-3) -> None:
+        numba.set_num_threads(1)
+        self.robot = robot
+        self.sim = Simulator(robot, scenario, dt=dt)
+        self.t0 = 0.0  # board time at which the simulator's t was 0
+        self.state = self.sim.state
+
+    @property
+    def scenario(self) -> Scenario:
+        """The current world (mode, payload, wheel masses, hidden effects)."""
+        return self.sim.scenario
+
+    def advance_to(self, t: float, duties: np.ndarray) -> None:
+        """Integrate up to board time `t` (s) holding `duties` (4, in [-1, 1])."""
+        dur = t - self.t0 - self.sim.t
+        if dur >= 0.5 * self.sim.dt:
+            numba.set_num_threads(1)  # per thread; see the module docstring
+            self.state = self.sim.advance(duties, dur)
+
+    def set_world(self, mode: str | None = None, payload: float | None = None,
+                  wheel_mass: tuple[float, float, float, float] | None = None) -> None:
+        """Operator action: flip the robot, add payload, swap wheels (ends at rest)."""
+        sc = self.sim.scenario
+        changes = {}
+        if mode is not None:
+            changes["mode"] = mode
+        if payload is not None:
+            changes["payload"] = float(payload)
+        if wheel_mass is not None:
+            changes["wheel_mass"] = tuple(float(m) for m in wheel_mass)
+        self.sim.set_scenario(replace(sc, **changes))
+        self.state = self.sim.state
+
+    def at_rest(self, tol: float = 1e-3) -> bool:
+        """True if every wheel turns slower than `tol` rad/s."""
+        return bool(np.all(np.abs(self.state.phi_dot) < tol))
