@@ -1,0 +1,96 @@
+"""The candidate library as diagnosis sees it: for each effect, what to fit and how big it is.
+
+Each `Effect` names a registered Term and adds what diagnosis needs beyond the physics:
+which parameters are fitted (`fit`), the values the others are held at (`fixed`), a
+realistic size (`example`, used by tests, benchmarks and as a sanity scale), the start of the
+fit (`start`), which procedure and which residual variable show it (`reveals`, `variable`),
+and which experiment separates it from look-alikes (`separates`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from omnibench.model.terms import Term, get_term
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One candidate for diagnosis (SI values)."""
+
+    name: str
+    fit: tuple[str, ...]
+    example: Mapping[str, float]
+    start: Mapping[str, float]
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    procedures: tuple[str, ...] = ()
+    variable: str = "speed"
+    separates: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def term(self) -> Term:
+        return get_term(self.name)
+
+    @property
+    def n_params(self) -> int:
+        """Parameters the candidate costs in a nested-model test."""
+        return len(self.fit)
+
+    def params(self, values: Mapping[str, float] | None = None) -> dict[str, float]:
+        """Full parameter set of the term: defaults, then `fixed`, then `values` (or `start`)."""
+        out = dict(self.term.defaults())
+        out.update(self.fixed)
+        out.update(self.start if values is None else values)
+        return {k: float(v) for k, v in out.items()}
+
+    def world(self, scale: float = 1.0) -> dict[str, dict[str, float]]:
+        """A Scenario.effects entry carrying this effect at `scale` times its realistic size."""
+        vals = {k: v * scale for k, v in self.example.items()}
+        return {self.name: self.params(vals)}
+
+
+_E = Effect
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        _E("stribeck_friction", fit=("b_s",), example={"b_s": 0.25}, start={"b_s": 0.05},
+           fixed={"w_s": 1.0, "c_s": 0.01}, procedures=("upside_down_sweep", "step_response"),
+           variable="speed",
+           separates={"driver_deadband": "repeat the sweep with a heavier wheel set: Stribeck friction "
+                      "grows with the axle load, a deadband does not; or log the motor current: a "
+                      "deadband leaves the current-speed relation unchanged"}),
+        _E("driver_deadband", fit=("u_0",), example={"u_0": 0.03}, start={"u_0": 0.01},
+           fixed={"w_u": 0.002}, procedures=("upside_down_sweep", "step_response"), variable="duty",
+           separates={"stribeck_friction": "repeat the sweep with a heavier wheel set (deadband is "
+                      "load independent) or log the motor current (deadband does not change it)"}),
+        _E("asymmetric_coulomb", fit=("db",), example={"db": 0.06}, start={"db": 0.0},
+           procedures=("upside_down_sweep",), variable="direction",
+           separates={"per_wheel_friction": "run the sweep in both directions"}),
+        _E("per_wheel_friction", fit=("db_2", "db_3", "db_4"),
+           example={"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05},
+           start={"db_2": 0.0, "db_3": 0.0, "db_4": 0.0}, procedures=("upside_down_sweep",),
+           variable="wheel"),
+        _E("quadratic_drag", fit=("d_q",), example={"d_q": 1.5e-3}, start={"d_q": 1e-4},
+           procedures=("upside_down_sweep",), variable="speed"),
+        _E("cogging_torque", fit=("A_c",), example={"A_c": 0.3}, start={"A_c": 0.05},
+           fixed={"n_c": 10.0, "phase": 0.0}, procedures=("upside_down_sweep", "step_response"),
+           variable="speed"),
+        _E("com_offset", fit=("dx", "dy"), example={"dx": 0.0, "dy": 0.03}, start={"dx": 0.0, "dy": 0.0},
+           procedures=("forward_runs", "lateral_runs"), variable="heading"),
+        _E("floor_slope", fit=("theta_s",), example={"theta_s": 0.0175}, start={"theta_s": 0.0},
+           fixed={"psi_s": 0.0}, procedures=("forward_runs",), variable="direction"),
+        _E("battery_resistance", fit=("R_b",), example={"R_b": 0.25}, start={"R_b": 0.02},
+           procedures=("step_response", "energy_trajectories"), variable="current"),
+        _E("quiescent_current", fit=("I_q",), example={"I_q": 0.3}, start={"I_q": 0.02},
+           procedures=("energy_trajectories",), variable="time"),
+        _E("winding_heating", fit=("theta",), example={"theta": 20.0}, start={"theta": 2.0},
+           fixed={"tau_th": 60.0, "alpha_cu": 0.00393}, procedures=("upside_down_sweep", "step_response"),
+           variable="time"),
+    )
+}
+
+
+def effect_names() -> list[str]:
+    """Names of every candidate in the library."""
+    return list(EFFECTS)
