@@ -1,0 +1,621 @@
+"""Fit the model's coefficients to the bench's observations, with honest uncertainties and an
+identifiability verdict per parameter.
+
+Public API (used by `omnibench fit` and by the diagnosis)::
+
+    fit(robot, obs, free=None, *, procedures=None) -> FitResult
+    fit_per_wheel(robot, obs, free=("a", "b", "c")) -> dict[int, FitResult]     # III.i per wheel
+    sweep_linear_estimate(robot, sweep) -> dict                                   # paper's III.i LS
+    predict_observations(robot, obs, procedures=None) -> DataFrame
+    error_by_procedure(robot, obs, procedures=None, kind="nrmse") -> dict[str, float]
+    default_free(robot, obs, procedures=None) -> list[str]
+
+Parameter names are the paper's symbols (`a, b, c, a_r, b_r, c_r, C_r`, motor constants
+`k_t, k_e, R_a`, also `eta, I_0`) and `<effect>.<param>` for a parameter of an effect the robot
+declares in `robot.effects` (e.g. `stribeck_friction.b_s`).
+
+Method. Every observation is predicted through the simulator (`Predictor`), so any declared
+term takes part. The weighted residuals r_k = (y_k - f_k(theta)) / sigma_k are minimised with
+scipy's trust-region least squares; the Jacobian comes from forward differences, all perturbed
+parameter sets simulated in one `simulate_batch` call. sigma_k is the observation's own
+standard error (encoder quantisation through the speed estimator, current noise over the
+averaged samples, the operator's tape noise); where a run does not give one (the 2019 sweep),
+each (procedure, signal) group gets the RMS of its residuals from a first pass.
+
+Uncertainties: cov = s^2 (J^T W J)^-1 with s^2 = chi^2 / dof (so unmodelled structure widens the
+intervals instead of hiding), standard errors, 95 % intervals from Student's t with dof degrees
+of freedom, the correlation matrix.
+
+Identifiability (design.md §3): the weighted Jacobian of the requested parameters, columns
+scaled to unit length, is decomposed (SVD). Its rank and condition number are reported. A
+singular value below RANK_TOL x the largest is a combination the data cannot see: the
+parameters that carry it are not identifiable, are held at their robot-file values and are
+reported as such (with the combination), never with a number of their own. A fitted parameter
+whose column is nearly collinear with a *fixed* motor constant (the sweep without current:
+a and the back-EMF damping eta k_t k_e / R_a; forward runs: C_r and c b) is reported
+`conditional`: its value holds only if the fixed constant is right.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, stats
+
+from omnibench.analysis.observations import Observations
+from omnibench.analysis.predictor import Predictor
+from omnibench.errors import UserError
+
+CORE = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
+MOTOR = ("k_t", "k_e", "R_a", "eta", "I_0")
+FITTABLE_FIELDS = CORE + MOTOR
+#: Singular values below this fraction of the largest are directions the data cannot see.
+RANK_TOL = 1e-6
+#: A free parameter and a fixed constant are "not separable" when adding the constant's column
+#: leaves a singular value below this fraction of the largest.
+CONFOUND_TOL = 1e-3
+#: Sweep steady states slower than this many sign widths are left out of the fit (wheel stuck or
+#: inside the regularised sign: a deadband/stiction region the paper's model does not describe).
+MIN_SWEEP_SPEED_WIDTHS = 3.0
+#: Typical magnitudes (SI) used to scale parameters and finite-difference steps.
+TYPICAL = {"a": 0.01, "b": 0.5, "c": 0.01, "a_r": 2.0, "b_r": 1.0, "c_r": 0.01, "C_r": 0.02,
+           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1}
+UNITS = {"a": "N m s/rad", "b": "N m", "c": "1/N", "a_r": "N s/m", "b_r": "N", "c_r": "1/N", "C_r": "1",
+         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A"}
+FD_STEP = 1e-5  # relative (to the parameter's scale) forward-difference step
+DEFAULT_PROCEDURES = ("sweep", "forward", "lateral")
+
+
+# ----------------------------------------------------------------------------- parameters
+def _effect_param(robot: Any, name: str) -> tuple[str, str, Any]:
+    eff, _, p = name.partition(".")
+    from omnibench.model.terms import get_term
+
+    if eff not in robot.effects:
+        raise UserError(f"free parameter {name}: the robot declares no effect {eff!r} "
+                        f"(declared: {', '.join(robot.effects) or 'none'})")
+    try:
+        term = get_term(eff)
+    except KeyError as exc:
+        raise UserError(str(exc)) from None
+    spec = next((q for q in term.params if q.name == p), None)
+    if spec is None:
+        raise UserError(f"free parameter {name}: {eff} has no parameter {p!r} ({', '.join(term.param_names)})")
+    return eff, p, spec
+
+
+def param_value(robot: Any, name: str) -> float:
+    """Current value (SI) of a parameter name on `robot`."""
+    if "." in name:
+        eff, p, spec = _effect_param(robot, name)
+        return float(robot.effects[eff].get(p, spec.default))
+    if name not in FITTABLE_FIELDS:
+        raise UserError(f"cannot fit {name!r}: choose from {', '.join(FITTABLE_FIELDS)} or <effect>.<param>")
+    return float(getattr(robot, name))
+
+
+def param_bounds(robot: Any, name: str) -> tuple[float, float]:
+    """Physical bounds (SI) of a parameter."""
+    if "." in name:
+        _, _, spec = _effect_param(robot, name)
+        return float(spec.lower), float(spec.upper)
+    if name in CORE or name == "I_0":
+        return 0.0, math.inf
+    if name == "eta":
+        return 1e-3, 1.0
+    return 1e-6, math.inf
+
+
+def param_scale(robot: Any, name: str) -> float:
+    """Typical magnitude used to scale a parameter (its value, else a documented typical size)."""
+    v = abs(param_value(robot, name))
+    if "." in name:
+        _, _, spec = _effect_param(robot, name)
+        return max(v, abs(spec.default), 1e-6)
+    return max(v, TYPICAL.get(name, 1.0) * 0.1)
+
+
+def param_unit(robot: Any, name: str) -> str:
+    if "." in name:
+        return _effect_param(robot, name)[2].unit
+    return UNITS.get(name, "")
+
+
+def with_params(robot: Any, values: Mapping[str, float]) -> Any:
+    """A copy of `robot` with parameters set (fields and `<effect>.<param>`)."""
+    fields: dict[str, float] = {}
+    effects = None
+    for name, v in values.items():
+        if "." in name:
+            eff, p = name.split(".", 1)
+            if effects is None:
+                effects = {k: dict(x) for k, x in robot.effects.items()}
+            effects.setdefault(eff, {})[p] = float(v)
+        else:
+            fields[name] = float(v)
+    if effects is not None:
+        fields["effects"] = effects  # type: ignore[assignment]
+    return robot.replace(**fields) if fields else robot
+
+
+def default_free(robot: Any, obs: Observations, procedures: Sequence[str] | None = None) -> list[str]:
+    """The parameters each procedure present is designed to measure: sweep -> a, b, c (and k_e,
+    R_a when currents were logged); forward -> C_r; lateral -> a_r, b_r, c_r; plus every
+    parameter of the effects the robot declares."""
+    procs = set(procedures or obs.procedures())
+    free: list[str] = []
+    if "sweep" in procs and len(obs.sweep):
+        free += ["a", "b", "c"]
+        if obs.has_current:
+            free += ["k_e", "R_a"]
+    if "forward" in procs and len(obs.forward):
+        free += ["C_r"]
+    if "lateral" in procs and len(obs.lateral):
+        free += ["a_r", "b_r", "c_r"]
+    for eff, params in robot.effects.items():
+        free += [f"{eff}.{p}" for p in params]
+    return free
+
+
+# ----------------------------------------------------------------------------- result
+@dataclass(frozen=True)
+class Verdict:
+    """Identifiability of one parameter: status is 'identified', 'conditional' (identified only
+    given a fixed constant it cannot be separated from) or 'not identifiable'."""
+
+    status: str
+    reason: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status != "not identifiable"
+
+    def __bool__(self) -> bool:
+        return self.ok
+
+
+@dataclass
+class FitResult:
+    """Everything a fit found (SI units). Parameters that are not identifiable keep their
+    robot-file value in `values` and have NaN `se`/`ci95`; check `identifiable[name]`."""
+
+    robot: Any
+    free: list[str]
+    values: dict[str, float]
+    se: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    cov: pd.DataFrame
+    corr: pd.DataFrame
+    condition_number: float
+    rank: int
+    identifiable: dict[str, Verdict]
+    residuals: pd.DataFrame
+    chi2: float
+    dof: int
+    runs_used: list[str]
+    procedures: list[str]
+    s2: float = 1.0
+    initial: dict[str, float] = field(default_factory=dict)
+    fixed: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    confounded: list[dict[str, Any]] = field(default_factory=list)
+    nfev: int = 0
+    date: str = ""
+
+    @property
+    def fitted(self) -> list[str]:
+        """Parameters that were estimated (identifiable ones)."""
+        return [p for p in self.free if p not in self.fixed]
+
+    def summary_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        for p in self.free:
+            v = self.identifiable[p]
+            rows.append({"name": p, "value": self.values[p], "se": self.se[p], "ci95": self.ci95[p],
+                         "unit": param_unit(self.robot, p), "identifiable": v.ok, "verdict": v.status,
+                         "reason": v.reason})
+        return rows
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready dict: parameters (name -> value, se, ci95, identifiable, verdict, reason), the
+        correlation matrix, condition number, rank, chi2, dof, runs used, notes."""
+        def f(x: float) -> float | None:
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        return {
+            "parameters": {r["name"]: {"value": f(r["value"]), "se": f(r["se"]),
+                                       "ci95": [f(r["ci95"][0]), f(r["ci95"][1])], "unit": r["unit"],
+                                       "identifiable": r["identifiable"], "verdict": r["verdict"],
+                                       "reason": r["reason"]} for r in self.summary_rows()},
+            "correlation": {a: {b: f(self.corr.loc[a, b]) for b in self.corr.columns} for a in self.corr.index},
+            "condition_number": f(self.condition_number), "rank": int(self.rank),
+            "n_parameters": len(self.free), "chi2": f(self.chi2), "dof": int(self.dof), "s2": f(self.s2),
+            "runs_used": list(self.runs_used), "procedures": list(self.procedures),
+            "confounded": self.confounded, "notes": list(self.notes),
+            "error_by_procedure": {k: f(v) for k, v in _nrmse_table(self.residuals[self.residuals["used"]]).items()},
+        }
+
+    def table(self) -> str:
+        """A plain-text table a lab engineer reads."""
+        lines = [f"{'parameter':<22} {'value':>12} {'SE':>10} {'95% interval':>27}  unit        verdict"]
+        for r in self.summary_rows():
+            if r["identifiable"] and math.isfinite(r["se"]):
+                lo, hi = r["ci95"]
+                lines.append(f"{r['name']:<22} {r['value']:>12.5g} {r['se']:>10.3g} [{lo:>11.5g}, {hi:>11.5g}]  "
+                             f"{r['unit']:<11} {r['verdict']}")
+            else:
+                lines.append(f"{r['name']:<22} {'--':>12} {'--':>10} {'':>27}  {r['unit']:<11} {r['verdict']}")
+            if r["verdict"] != "identified":
+                lines.append(f"    {r['reason']}")
+        lines.append(f"condition number {self.condition_number:.3g}, rank {self.rank} of {len(self.free)}, "
+                     f"chi2 {self.chi2:.1f} on {self.dof} dof (s^2 = {self.s2:.3g})")
+        return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- III.i closed form
+def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
+    """The paper's III.i least squares in the torque domain (a fast closed form; start values).
+
+    Steady state upside down: tau_motor = (1 + c F_N)(a omega + b sign omega), with tau_motor =
+    eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a. Linear in
+    (a, b, a c, b c); returns a, b and c = (b c) / b (0 when a single load cannot separate it),
+    plus `n` rows used."""
+    df = sweep[np.abs(sweep["omega"]) > MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi]
+    if len(df) < 2:
+        return {"a": robot.a, "b": robot.b, "c": robot.c, "n": len(df)}
+    w = df["omega"].to_numpy(float)
+    F = df["F_N"].to_numpy(float)
+    cur = df["current"].to_numpy(float)
+    if np.isfinite(cur).all():
+        y = robot.eta * robot.k_t * cur
+    else:
+        y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * robot.V_batt - robot.k_e * w) / robot.R_a
+    s = np.sign(w)
+    multi = np.ptp(F) > 1e-6 * max(1.0, float(np.max(F)))
+    X = np.column_stack([w, s, F * w, F * s]) if multi else np.column_stack([w, s])
+    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    a, b = float(theta[0]), float(theta[1])
+    c = float(theta[3] / theta[1]) if multi and abs(theta[1]) > 0 else 0.0
+    if multi:  # with c known, a and b are the coefficients at zero load
+        pass
+    return {"a": max(a, 0.0), "b": max(b, 0.0), "c": max(c, 0.0), "n": len(df)}
+
+
+# ----------------------------------------------------------------------------- the fit
+def _usable(pred: Predictor, robot: Any) -> np.ndarray:
+    t = pred.table
+    ok = np.isfinite(pred.measured)
+    sw = (t["procedure"] == "sweep").to_numpy()
+    slow = sw & (np.abs(t["speed"].to_numpy(float)) < MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi)
+    return ok & ~slow
+
+
+class _Problem:
+    """Weighted residuals and their finite-difference Jacobian in scaled parameters."""
+
+    def __init__(self, robot: Any, pred: Predictor, free: list[str], used: np.ndarray, sigma: np.ndarray) -> None:
+        self.robot, self.pred, self.free = robot, pred, free
+        self.used, self.sigma = used, sigma
+        self.scale = np.array([param_scale(robot, p) for p in free])
+        self.substeps = max(1, pred.substeps([robot])) if len(pred) else 1
+        self.nfev = 0
+        self._cache: tuple[np.ndarray, np.ndarray] | None = None
+
+    def robot_at(self, x: np.ndarray) -> Any:
+        return with_params(self.robot, {p: float(v) for p, v in zip(self.free, x * self.scale)})
+
+    def _sub(self, robots: Sequence[Any]) -> int:
+        return max(self.substeps, self.pred.substeps(robots[:1]))
+
+    def predict(self, x_list: Sequence[np.ndarray]) -> np.ndarray:
+        robots = [self.robot_at(x) for x in x_list]
+        self.nfev += len(robots)
+        return self.pred.predict(robots, substeps=self._sub(robots))
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        f = self.predict([x])[0]
+        self._cache = (x.copy(), f)
+        return self.weighted(f)
+
+    def weighted(self, f: np.ndarray) -> np.ndarray:
+        return ((self.pred.measured - f) / self.sigma)[self.used]
+
+    def jacobian(self, x: np.ndarray, extra: Sequence[str] = ()) -> np.ndarray:
+        """d(weighted residual)/dx (n_used, n_free [+ extra fixed parameters, per unit of their scale])."""
+        xs = [x]
+        for j in range(len(x)):
+            xp = x.copy()
+            xp[j] += FD_STEP
+            xs.append(xp)
+        robots = [self.robot_at(xi) for xi in xs]
+        extra_h = []
+        for name in extra:
+            h = FD_STEP * param_scale(self.robot, name)
+            extra_h.append(h / param_scale(self.robot, name))
+            robots.append(with_params(robots[0], {name: param_value(self.robot, name) + h}))
+        self.nfev += len(robots)
+        F = self.pred.predict(robots, substeps=self._sub(robots))
+        f0 = F[0]
+        cols = [(F[1 + j] - f0) / FD_STEP for j in range(len(x))]
+        cols += [(F[1 + len(x) + k] - f0) / extra_h[k] for k in range(len(extra))]
+        J = -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None] if cols else np.zeros((int(self.used.sum()), 0))
+        return J
+
+
+def _scaled_svd(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    norms = np.linalg.norm(J, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
+    return s, Vt, norms
+
+
+def _null_analysis(J: np.ndarray, names: list[str]) -> tuple[int, float, list[tuple[float, dict[str, float]]]]:
+    """Rank, condition number and the near-null combinations {name: weight} of a Jacobian."""
+    if J.shape[1] == 0:
+        return 0, 1.0, []
+    colnorm = np.linalg.norm(J, axis=0)
+    zero = colnorm <= 1e-12 * max(1.0, float(colnorm.max()))
+    s, Vt, _ = _scaled_svd(J)
+    smax = s[0] if len(s) and s[0] > 0 else 1.0
+    rank = int(np.sum(s > RANK_TOL * smax)) - int(zero.sum() and 0)
+    cond = float(smax / s[-1]) if s[-1] > 0 else math.inf
+    null = []
+    for k in range(len(s)):
+        if s[k] <= RANK_TOL * smax:
+            v = Vt[k]
+            null.append((float(s[k] / smax), {names[i]: float(v[i]) for i in range(len(names)) if abs(v[i]) > 0.2}))
+    return rank, cond, null
+
+
+#: When a combination is invisible, which of its parameters to hold fixed first (lower first).
+def _fix_priority(name: str) -> int:
+    order = ["k_t", "eta", "R_a", "k_e", "I_0", "c", "c_r", "C_r", "a", "a_r", "b_r", "b"]
+    return order.index(name) if name in order else len(order)
+
+
+def _combination(weights: Mapping[str, float]) -> str:
+    return " ".join(f"{'+' if w >= 0 else '-'} {abs(w):.2f} {n}" for n, w in weights.items()).lstrip("+ ")
+
+
+def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
+        procedures: Sequence[str] | None = None, max_nfev: int = 40) -> FitResult:
+    """Weighted least-squares fit of `free` parameters to `obs` through the simulator.
+
+    robot: the starting model (its values are the start point and hold every fixed parameter).
+    free: parameter names (default `default_free`). procedures: which observation tables enter
+    the fit (default: those of sweep, forward, lateral that have rows; energy and step responses
+    are kept for validation). Returns a FitResult; raises UserError when nothing can be fitted.
+    """
+    procs = [p for p in (procedures or DEFAULT_PROCEDURES) if len(obs.table(p))]
+    if not procs:
+        raise UserError("no observations to fit (need sweep, forward or lateral runs)")
+    free = list(free) if free is not None else default_free(robot, obs, procs)
+    if not free:
+        raise UserError("no free parameters to fit")
+    for p in free:
+        param_value(robot, p)  # validates names
+    if len(set(free)) != len(free):
+        raise UserError("a free parameter is named twice")
+    pred = Predictor(obs, procs)
+    used = _usable(pred, robot)
+    if used.sum() <= 0:
+        raise UserError("no usable observations (all sweep speeds are below the sign width?)")
+    notes: list[str] = []
+    n_slow = int((np.isfinite(pred.measured) & ~used).sum())
+    if n_slow:
+        notes.append(f"{n_slow} sweep steady state(s) slower than {MIN_SWEEP_SPEED_WIDTHS:g} x sign width "
+                     f"({MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi:g} rad/s) left out: wheel stuck or in the "
+                     "stiction/deadband region the model does not describe (see residuals)")
+    # start values: the paper's closed form for III.i
+    start = robot
+    if "sweep" in procs and {"a", "b"} <= set(free):
+        est = sweep_linear_estimate(robot, obs.sweep)
+        guess = {k: est[k] for k in ("a", "b", "c") if k in free}
+        if "c" in guess and guess["c"] <= 0:
+            guess.pop("c")
+        start = with_params(robot, guess)
+    sigma = pred.sigma.copy()
+    unknown = ~np.isfinite(sigma) | (sigma <= 0)
+    groups = pred.table[["procedure", "signal"]].astype(str).agg("/".join, axis=1).to_numpy()
+    for g in np.unique(groups[unknown & used]):
+        m = (groups == g) & used
+        vals = np.abs(pred.measured[m])
+        sigma[(groups == g) & unknown] = max(1e-3 * float(np.sqrt(np.mean(vals ** 2))), 1e-12)
+    prob = _Problem(start, pred, free, used, sigma)
+    x0 = np.array([param_value(start, p) for p in free]) / prob.scale
+    # ---- identifiability at the start point: hold invisible combinations fixed
+    J0 = prob.jacobian(x0)
+    rank_req, cond_req, null = _null_analysis(J0, free)
+    fixed: list[str] = []
+    verdicts: dict[str, Verdict] = {}
+    colnorm = np.linalg.norm(J0, axis=0)
+    for j, p in enumerate(free):
+        if colnorm[j] <= 1e-12 * max(1.0, float(colnorm.max())):
+            fixed.append(p)
+            verdicts[p] = Verdict("not identifiable", f"the data ({', '.join(procs)}) carry no information on {p}")
+    active = [p for p in free if p not in fixed]
+    while active:
+        idx = [free.index(p) for p in active]
+        r, _, nl = _null_analysis(J0[:, idx], active)
+        if not nl:
+            break
+        ratio, comb = nl[-1] if nl else (0, {})
+        cand = sorted(comb, key=lambda n: (_fix_priority(n), -abs(comb[n])))
+        p_fix = cand[0]
+        why = (f"not separable: the data see only the combination {_combination(comb)} (scaled; singular value "
+               f"ratio {ratio:.1e}); {p_fix} held at {param_value(robot, p_fix):.4g} {param_unit(robot, p_fix)}")
+        for n in comb:
+            if n != p_fix and n not in verdicts:
+                verdicts[n] = Verdict("conditional", f"not separable from {p_fix} (held at its robot-file value "
+                                                     f"{param_value(robot, p_fix):.4g}): only {_combination(comb)} is identified")
+        verdicts[p_fix] = Verdict("not identifiable", why)
+        fixed.append(p_fix)
+        active.remove(p_fix)
+    if not active:
+        raise UserError("none of the free parameters can be identified from these observations: "
+                        + "; ".join(f"{p}: {v.reason}" for p, v in verdicts.items()))
+    # ---- the fit proper (twice when some sigmas were unknown: second pass with group RMS sigmas)
+    sub_fixed = with_params(start, {p: param_value(robot, p) for p in fixed})
+    prob = _Problem(sub_fixed, pred, active, used, sigma)
+    xa = np.array([param_value(start, p) for p in active]) / prob.scale
+    lo = np.array([param_bounds(robot, p)[0] for p in active]) / prob.scale
+    hi = np.array([param_bounds(robot, p)[1] for p in active]) / prob.scale
+    xa = np.clip(xa, lo + 1e-12 * np.abs(lo), hi)
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        return prob.jacobian(x)
+
+    passes = 2 if unknown[used].any() else 1
+    sol = None
+    for pass_ in range(passes):
+        sol = optimize.least_squares(prob.residual, xa, jac=jac, bounds=(lo, hi), method="trf",
+                                     x_scale=1.0, max_nfev=max_nfev, ftol=1e-10, xtol=1e-10, gtol=1e-10)
+        xa = sol.x
+        if pass_ + 1 < passes:
+            f = prob.predict([xa])[0]
+            res = pred.measured - f
+            for g in np.unique(groups[unknown & used]):
+                m = (groups == g) & used
+                rms = float(np.sqrt(np.mean(res[m] ** 2))) if m.any() else 1.0
+                sigma[(groups == g) & unknown] = max(rms, 1e-12)
+            prob.sigma = sigma
+    xa = sol.x
+    fitted_robot = prob.robot_at(xa)
+    f = prob.predict([xa])[0]
+    r = prob.weighted(f)
+    J = prob.jacobian(xa)
+    n_used = int(used.sum())
+    dof = max(n_used - len(active), 1)
+    chi2 = float(r @ r)
+    s2 = chi2 / dof
+    JTJ = J.T @ J
+    try:
+        cov_x = np.linalg.inv(JTJ) * s2
+    except np.linalg.LinAlgError:
+        cov_x = np.linalg.pinv(JTJ) * s2
+    cov = cov_x * np.outer(prob.scale, prob.scale)
+    se_a = np.sqrt(np.maximum(np.diag(cov), 0))
+    tq = float(stats.t.ppf(0.975, dof))
+    d = np.where(se_a > 0, se_a, 1.0)
+    corr = cov / np.outer(d, d)
+    values = {p: param_value(fitted_robot, p) for p in free}
+    se = {p: float("nan") for p in free}
+    ci = {p: (float("nan"), float("nan")) for p in free}
+    for k, p in enumerate(active):
+        se[p] = float(se_a[k])
+        ci[p] = (values[p] - tq * se[p], values[p] + tq * se[p])
+    # ---- conditional parameters: confounded with a fixed constant
+    confounded: list[dict[str, Any]] = []
+    nuisance = []
+    if "sweep" in procs and not obs.has_current and "k_e" not in free:
+        nuisance.append("k_e")
+    if "forward" in procs and "C_r" in active and "c" not in free and "sweep" not in procs:
+        nuisance.append("c")
+    for nu in nuisance:
+        Jx = prob.jacobian(xa, extra=[nu])
+        s, Vt, _ = _scaled_svd(Jx)
+        ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
+        if ratio < CONFOUND_TOL:
+            v = Vt[-1]
+            names = active + [nu]
+            comb = {names[i]: float(v[i]) for i in range(len(names)) if abs(v[i]) > 0.2}
+            for p in comb:
+                if p in active and verdicts.get(p, Verdict("identified", "")).status == "identified":
+                    verdicts[p] = Verdict(
+                        "conditional",
+                        f"not separable from {nu} (fixed at {param_value(robot, nu):.4g} {param_unit(robot, nu)}): "
+                        f"the data see only {_combination(comb)} (singular value ratio {ratio:.1e})"
+                        + ("; log the motor current to separate friction from the back-EMF damping "
+                           "eta k_t k_e / R_a" if nu == "k_e" else ""))
+            confounded.append({"fixed": nu, "with": [p for p in comb if p != nu], "ratio": ratio,
+                               "combination": _combination(comb)})
+    for k, p in enumerate(active):
+        if p not in verdicts:
+            rel = se[p] / abs(values[p]) if values[p] else math.inf
+            verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}"
+                                  + (" (consistent with zero)" if ci[p][0] <= 0 <= ci[p][1] else ""))
+    residuals = _residual_frame(pred, f, sigma, used)
+    runs_used = sorted(set(residuals.loc[residuals["used"], "run"]))
+    if s2 > 4:
+        notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
+                     "something (see residuals / omnibench diagnose); intervals are widened by s")
+    return FitResult(
+        robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
+        cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),
+        condition_number=cond_req, rank=rank_req, identifiable=verdicts, residuals=residuals, chi2=chi2, dof=dof,
+        runs_used=runs_used, procedures=procs, s2=s2, initial={p: param_value(robot, p) for p in free},
+        fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev,
+        date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    )
+
+
+def fit_per_wheel(robot: Any, obs: Observations, free: Sequence[str] = ("a", "b", "c")) -> dict[int, FitResult]:
+    """III.i per wheel: the sweep of each wheel fitted on its own (wheels differ on a real robot)."""
+    out = {}
+    for j in sorted(int(w) for w in obs.sweep["wheel"].unique()):
+        out[j] = fit(robot, obs.select(wheels=[j], procedures=["sweep"]), list(free), procedures=["sweep"])
+    return out
+
+
+# ----------------------------------------------------------------------------- predictions
+def _residual_frame(pred: Predictor, f: np.ndarray, sigma: np.ndarray, used: np.ndarray) -> pd.DataFrame:
+    df = pred.table.copy()
+    df["predicted"] = f
+    df["sigma"] = sigma
+    df["residual"] = df["measured"] - df["predicted"]
+    df["normalised"] = df["residual"] / df["sigma"]
+    df["used"] = used
+    return df
+
+
+def predict_observations(robot: Any, obs: Observations, procedures: Sequence[str] | None = None) -> pd.DataFrame:
+    """The model's prediction of every observation entry: the entry table (procedure, run, step,
+    wheel, signal, unit, measured, sigma, speed, F_N, direction, time, current, u, payload) plus
+    predicted, residual (measured - predicted) and normalised (residual / sigma; NaN when the
+    observation has no standard error)."""
+    pred = Predictor(obs, procedures)
+    if not len(pred):
+        return _residual_frame(pred, np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool))
+    f = pred.predict([robot])[0]
+    return _residual_frame(pred, f, pred.sigma, _usable(pred, robot))
+
+
+def _nrmse_table(df: pd.DataFrame) -> dict[str, float]:
+    out = {}
+    for p, g in df.groupby("procedure", sort=False):
+        vals = []
+        for _, h in g.groupby("signal"):
+            m = np.isfinite(h["residual"]) & np.isfinite(h["measured"])
+            if m.sum() == 0:
+                continue
+            den = float(np.sqrt(np.mean(h.loc[m, "measured"] ** 2)))
+            vals.append(float(np.sqrt(np.mean(h.loc[m, "residual"] ** 2))) / den if den > 0 else math.inf)
+        out[str(p)] = float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan")
+    return out
+
+
+def error_by_procedure(robot: Any, obs: Observations, procedures: Sequence[str] | None = None,
+                       kind: str = "nrmse") -> dict[str, float]:
+    """A normalised prediction error per procedure (for held-out comparisons).
+
+    kind="nrmse" (default): for each signal of the procedure RMS(measured - predicted) /
+    RMS(measured), combined over the procedure's signals as their root mean square
+    (dimensionless; 0.01 = 1 %). kind="z": RMS of (measured - predicted) / sigma over entries
+    with a standard error (about 1 when the model explains the data to the noise).
+    Sweep steady states below the sign-width threshold are included (they are data too)."""
+    df = predict_observations(robot, obs, procedures)
+    if kind == "nrmse":
+        return _nrmse_table(df)
+    if kind == "z":
+        out = {}
+        for p, g in df.groupby("procedure", sort=False):
+            z = g["normalised"].to_numpy(float)
+            z = z[np.isfinite(z)]
+            out[str(p)] = float(np.sqrt(np.mean(z ** 2))) if len(z) else float("nan")
+        return out
+    raise ValueError(f"kind must be 'nrmse' or 'z', not {kind!r}")

@@ -1,0 +1,444 @@
+"""What the estimators see: measurements of every procedure as pandas tables, decoupled from
+run storage.
+
+`Observations` holds one DataFrame per procedure (SI units throughout) plus the sample traces
+the simulation-based fits replay:
+
+``sweep`` (III.i, robot upside down; one row per steady state and wheel)
+    run, step, wheel (1-4), u (duty), direction (+1/-1), wheel_mass (kg), F_N (N, axle load =
+    wheel_mass g), omega (rad/s, steady wheel speed), omega_se (rad/s, its standard error;
+    NaN if unknown), current (A, mean motor current; NaN if not logged), current_se (A),
+    n (samples averaged), steady (bool).
+``forward`` (III.ii) and ``lateral`` (III.iii) (one row per run step, robot on the ground)
+    run, step, u1..u4 (duties), duration (s driving), t_total (s driving + settle), payload (kg),
+    heading (rad), measured_forward / measured_left (m, operator's tape, body frame at the start;
+    NaN if not measured), measured_se (m), enc_forward / enc_left (m, encoder displacement
+    through pinv(R)), dphi1..4 (rad), w1..w4 (rad/s, mean drive speed from the encoder trace over
+    [w_t0, w_t1] s after the start), w_se1..4 (rad/s), w_t0, w_t1 (s).
+``energy`` (IV; one row per trajectory)
+    run, step, trajectory, duration (s), t_total (s), payload (kg), measured_J (J, trapezoid of
+    V_batt I_batt over the step; NaN if no current was logged), has_current.
+``step_response`` (imported square waves, wheels in the air; one row per constant-duty step)
+    run, step, duty, t_start, t_end (s, board time), n.
+
+``traces[(run, step)]``: the step's samples as a DataFrame with t (s since the step start; for
+``step_response`` board time), u1..u4, phi1..4 (rad since the step start), i1..i4 (A), V_batt (V),
+I_batt (A); columns are NaN where the board did not log them.
+
+Build it from run directories (`Observations.from_runs`, through omnibench.runs.read_run) or
+straight from the model (`Observations.simulated`: same procedures, same estimators, sensor
+noise of the simulated board) for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from omnibench.errors import UserError
+from omnibench.model.context import GRAVITY
+
+PROCEDURES = ("sweep", "forward", "lateral", "energy", "step_response")
+
+#: run.json `procedure` -> Observations table
+RUN_PROCEDURES = {
+    "upside_down_sweep": "sweep",
+    "forward_runs": "forward",
+    "lateral_runs": "lateral",
+    "energy_trajectories": "energy",
+    "step_response": "step_response",
+}
+
+SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
+                 "current", "current_se", "n", "steady"]
+RUN_COLUMNS = (["run", "step", "u1", "u2", "u3", "u4", "duration", "t_total", "payload", "heading",
+                "measured_forward", "measured_left", "measured_se", "enc_forward", "enc_left"]
+               + [f"dphi{j}" for j in range(1, 5)] + [f"w{j}" for j in range(1, 5)]
+               + [f"w_se{j}" for j in range(1, 5)] + ["w_t0", "w_t1"])
+ENERGY_COLUMNS = ["run", "step", "trajectory", "duration", "t_total", "payload", "measured_J", "has_current"]
+STEP_RESPONSE_COLUMNS = ["run", "step", "duty", "t_start", "t_end", "n"]
+TRACE_COLUMNS = ["t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4", "i1", "i2", "i3", "i4",
+                 "V_batt", "I_batt"]
+
+#: Default operator tape noise (one standard deviation), m, when a run does not say.
+DEFAULT_TAPE_SE = 0.002
+#: Window over which a steady speed is taken (s), as in procedures/upside_down_sweep.toml.
+STEADY_AVERAGE = 0.3
+
+
+def _empty(columns: list[str]) -> pd.DataFrame:
+    return pd.DataFrame({c: pd.Series(dtype=float) for c in columns})
+
+
+def quantisation_se(counts_per_rev: float) -> float:
+    """Standard deviation of an encoder angle reading from quantisation alone, rad: lsb/sqrt(12)."""
+    return 2.0 * math.pi / float(counts_per_rev) / math.sqrt(12.0)
+
+
+def slope_fit(t: np.ndarray, phi: np.ndarray, *, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-line fit of wheel angle against time: slope (rad/s) and its standard error per
+    column of phi (n, k). The residual scatter is floored at `floor` rad (quantisation)."""
+    t = np.asarray(t, dtype=float)
+    phi = np.asarray(phi, dtype=float)
+    if phi.ndim == 1:
+        phi = phi[:, None]
+    n = len(t)
+    if n < 3:
+        return np.full(phi.shape[1], np.nan), np.full(phi.shape[1], np.nan)
+    tc = t - t.mean()
+    sxx = float(np.sum(tc * tc))
+    slope = (tc @ (phi - phi.mean(axis=0))) / sxx
+    res = phi - phi.mean(axis=0) - np.outer(tc, slope)
+    s = np.sqrt(np.maximum(np.sum(res * res, axis=0) / (n - 2), floor * floor))
+    return slope, s / math.sqrt(sxx)
+
+
+@dataclass
+class Observations:
+    """Measurements of every procedure (see the module docstring for the columns)."""
+
+    sweep: pd.DataFrame = field(default_factory=lambda: _empty(SWEEP_COLUMNS))
+    forward: pd.DataFrame = field(default_factory=lambda: _empty(RUN_COLUMNS))
+    lateral: pd.DataFrame = field(default_factory=lambda: _empty(RUN_COLUMNS))
+    energy: pd.DataFrame = field(default_factory=lambda: _empty(ENERGY_COLUMNS))
+    step_response: pd.DataFrame = field(default_factory=lambda: _empty(STEP_RESPONSE_COLUMNS))
+    traces: dict[tuple[str, int], pd.DataFrame] = field(default_factory=dict)
+    #: run id -> facts about the run (procedure, path, source, counts_per_rev, ...)
+    runs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    # ----------------------------------------------------------------------------- queries
+    def table(self, procedure: str) -> pd.DataFrame:
+        """The DataFrame of one procedure ('sweep', 'forward', 'lateral', 'energy', 'step_response')."""
+        if procedure not in PROCEDURES:
+            raise KeyError(f"unknown procedure {procedure!r}; known: {', '.join(PROCEDURES)}")
+        return getattr(self, procedure)
+
+    def procedures(self) -> list[str]:
+        """Procedures with at least one row."""
+        return [p for p in PROCEDURES if len(self.table(p))]
+
+    @property
+    def run_ids(self) -> list[str]:
+        """Every run id that contributes a row."""
+        ids: list[str] = []
+        for p in PROCEDURES:
+            for r in self.table(p)["run"].tolist():
+                if r not in ids:
+                    ids.append(r)
+        return ids
+
+    @property
+    def has_current(self) -> bool:
+        """True when the sweep logged motor currents (separates friction from motor constants)."""
+        return bool(len(self.sweep)) and bool(np.isfinite(self.sweep["current"].to_numpy(dtype=float)).any())
+
+    def select(self, *, runs: Iterable[str] | None = None, procedures: Iterable[str] | None = None,
+               wheels: Iterable[int] | None = None, steps: Iterable[tuple[str, int]] | None = None) -> "Observations":
+        """A subset: only these runs / procedures / sweep wheels / (run, step) pairs."""
+        runs = set(runs) if runs is not None else None
+        procs = set(procedures) if procedures is not None else None
+        wheels = set(int(w) for w in wheels) if wheels is not None else None
+        steps = set(steps) if steps is not None else None
+        out: dict[str, pd.DataFrame] = {}
+        for p in PROCEDURES:
+            df = self.table(p)
+            keep = np.ones(len(df), dtype=bool)
+            if procs is not None and p not in procs:
+                keep[:] = False
+            if runs is not None:
+                keep &= df["run"].isin(runs).to_numpy()
+            if steps is not None:
+                keep &= np.array([(r, int(s)) in steps for r, s in zip(df["run"], df["step"])], dtype=bool)
+            if wheels is not None and p == "sweep":
+                keep &= df["wheel"].isin(wheels).to_numpy()
+            out[p] = df[keep].reset_index(drop=True)
+        used = {(r, int(s)) for p in PROCEDURES for r, s in zip(out[p]["run"], out[p]["step"])}
+        traces = {k: v for k, v in self.traces.items() if k in used}
+        return replace(self, traces=traces, runs={k: v for k, v in self.runs.items()
+                                                  if any(k == r for r, _ in used)}, **out)
+
+    def split(self, fraction: float = 0.5, seed: int = 0) -> tuple["Observations", "Observations"]:
+        """(fit, held-out) by whole run steps, each procedure split separately (for held-out errors)."""
+        rng = np.random.default_rng(seed)
+        a: set[tuple[str, int]] = set()
+        b: set[tuple[str, int]] = set()
+        for p in PROCEDURES:
+            keys = sorted({(r, int(s)) for r, s in zip(self.table(p)["run"], self.table(p)["step"])})
+            if not keys:
+                continue
+            order = rng.permutation(len(keys))
+            n_a = max(1, int(round(fraction * len(keys)))) if len(keys) > 1 else 1
+            for k, idx in enumerate(order):
+                (a if k < n_a else b).add(keys[idx])
+        return self.select(steps=a), self.select(steps=b)
+
+    def summary(self) -> str:
+        """One line per procedure: how many rows, runs, and whether current was logged."""
+        parts = []
+        for p in self.procedures():
+            df = self.table(p)
+            parts.append(f"{p}: {len(df)} rows from {df['run'].nunique()} run(s)")
+        return "; ".join(parts) if parts else "no observations"
+
+    @staticmethod
+    def concat(items: Sequence["Observations"]) -> "Observations":
+        """Merge several Observations (e.g. one per run)."""
+        out: dict[str, Any] = {}
+        for p in PROCEDURES:
+            frames = [o.table(p) for o in items if len(o.table(p))]
+            out[p] = pd.concat(frames, ignore_index=True) if frames else Observations().table(p)
+        traces: dict = {}
+        runs: dict = {}
+        for o in items:
+            traces.update(o.traces)
+            runs.update(o.runs)
+        return Observations(traces=traces, runs=runs, **out)
+
+    # ----------------------------------------------------------------------------- from runs
+    @classmethod
+    def from_runs(cls, paths: Iterable[str | Path], robot: Any = None) -> "Observations":
+        """Read run directories written by omnibench.runs (any procedure; folders are searched
+        recursively). `robot` gives the wheel masses and counts per revolution when a run does
+        not record them (default: the run's own robot, else the default Omnibot)."""
+        from omnibench.runs import find_runs, read_run
+
+        dirs: list[Path] = []
+        for p in paths:
+            p = Path(p)
+            if not p.exists():
+                raise UserError(f"{p}: no such run directory")
+            found = find_runs(p)
+            if not found:
+                raise UserError(f"{p}: no run directory here (no run.json)")
+            dirs.extend(found)
+        items = [_from_run(read_run(d), robot) for d in dirs]
+        return cls.concat(items)
+
+    # ----------------------------------------------------------------------------- simulated
+    @classmethod
+    def simulated(cls, robot: Any, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
+                  procedures: Sequence[str] = ("sweep", "forward", "lateral", "energy"),
+                  seed: int = 0, current: bool = True, files: Mapping[str, str | Path] | None = None,
+                  run_prefix: str = "sim") -> "Observations":
+        """A campaign simulated straight from the model (no board, no run files): the shipped
+        procedure files (or `files`: procedure -> TOML path) expanded for `robot`, each step
+        simulated with `world_effects` added to the world, then read through the same sensor
+        models (encoder floor quantisation, current noise 0.01 A, tape noise 2 mm) and the
+        same estimators as a real run. `current=False` leaves motor currents out of the sweep."""
+        from omnibench.analysis.simcampaign import simulate_campaign
+
+        return simulate_campaign(cls, robot, world_effects=world_effects or {}, procedures=procedures,
+                                 seed=seed, current=current, files=files, run_prefix=run_prefix)
+
+
+# --------------------------------------------------------------------------------- readers
+def _num(v: Any) -> float:
+    """float, NaN for None/empty/non-numbers."""
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+    return x
+
+
+def _run_robot(run: Any, robot: Any) -> Any:
+    if robot is not None:
+        return robot
+    from omnibench.model import default_robot
+    from omnibench.model.robot import robot_from_dict
+
+    data = run.metadata.get("robot")
+    if isinstance(data, dict):
+        try:
+            return robot_from_dict(data, path=str(run.path / "run.json"))
+        except UserError:
+            pass
+    return default_robot()
+
+
+def _trace(samples: pd.DataFrame, t0: float | None, cpr: float, relative: bool = True) -> pd.DataFrame:
+    """Samples -> trace columns (t from t0, phi from the first sample)."""
+    s = samples.sort_values("t")
+    out = pd.DataFrame({"t": s["t"].to_numpy(dtype=float)})
+    if relative and t0 is not None and math.isfinite(t0):
+        out["t"] = out["t"] - t0
+    for j in range(1, 5):
+        out[f"u{j}"] = s[f"u{j}"].to_numpy(dtype=float)
+    for j in range(1, 5):
+        phi = s[f"phi{j}"].to_numpy(dtype=float)
+        if not np.isfinite(phi).any():
+            phi = s[f"enc{j}"].to_numpy(dtype=float) * 2 * math.pi / cpr
+        out[f"phi{j}"] = phi - phi[0] if (relative and len(phi)) else phi
+    for c in ("i1", "i2", "i3", "i4", "V_batt", "I_batt"):
+        out[c] = s[c].to_numpy(dtype=float)
+    return out.reset_index(drop=True)
+
+
+def _col(steps: pd.DataFrame, name: str) -> pd.Series:
+    return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
+
+
+def _from_run(run: Any, robot: Any) -> Observations:
+    proc = RUN_PROCEDURES.get(run.procedure)
+    if proc is None:
+        raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
+                        f"({', '.join(RUN_PROCEDURES)})")
+    rid = str(run.metadata.get("run_id") or run.path.name)
+    rb = _run_robot(run, robot)
+    cpr = float(run.metadata.get("counts_per_rev") or rb.counts_per_rev)
+    info = {"procedure": run.procedure, "path": str(run.path), "status": run.status,
+            "counts_per_rev": cpr, "source": run.metadata.get("source"),
+            "imported": bool(run.metadata.get("imported", False))}
+    obs = Observations(runs={rid: info})
+    steps = run.steps
+    if not len(steps):
+        return obs
+    if proc == "sweep":
+        obs.sweep = _sweep_rows(run, rid, rb, cpr)
+    elif proc in ("forward", "lateral"):
+        df, traces = _run_rows(run, rid, rb, cpr, proc)
+        setattr(obs, proc, df)
+        obs.traces.update(traces)
+    elif proc == "energy":
+        rows = []
+        for _, st in steps.iterrows():
+            k = int(st["step"])
+            s = run.step_samples(k)
+            t0 = _num(st.get("t_start"))
+            if len(s):
+                obs.traces[(rid, k)] = _trace(s, t0, cpr)
+            rows.append({"run": rid, "step": k, "trajectory": str(st.get("trajectory", f"step {k}")),
+                         "duration": _num(st.get("duration")),
+                         "t_total": _num(st.get("t_end")) - t0, "payload": _num(st.get("payload")) if
+                         st.get("payload") is not None else 0.0,
+                         "measured_J": _num(st.get("energy")), "has_current": bool(st.get("has_current", False))})
+        obs.energy = pd.DataFrame(rows, columns=ENERGY_COLUMNS)
+    else:  # step_response
+        rows = []
+        for _, st in steps.iterrows():
+            k = int(st["step"])
+            s = run.step_samples(k)
+            if len(s):
+                obs.traces[(rid, k)] = _trace(s, None, cpr, relative=False)
+            rows.append({"run": rid, "step": k, "duty": _num(st.get("duty")),
+                         "t_start": _num(st.get("t_start")), "t_end": _num(st.get("t_end")), "n": len(s)})
+        obs.step_response = pd.DataFrame(rows, columns=STEP_RESPONSE_COLUMNS)
+    return obs
+
+
+def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
+    rows = []
+    floor = quantisation_se(cpr)
+    for _, st in run.steps.iterrows():
+        k = int(st["step"])
+        s = run.step_samples(k)
+        n = 0
+        w_se = np.full(4, np.nan)
+        i_se = np.full(4, np.nan)
+        if len(s) >= 4:
+            t = s["t"].to_numpy(dtype=float)
+            t_end = _num(st.get("t_end"))
+            t_end = t_end if math.isfinite(t_end) else t[-1]
+            sel = (t >= t_end - STEADY_AVERAGE) & (t <= t_end + 1e-9)
+            if sel.sum() >= 4:
+                tr = _trace(s[sel], None, cpr, relative=False)
+                _, w_se = slope_fit(tr["t"].to_numpy(), tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(), floor=floor)
+                n = int(sel.sum())
+                cur = tr[[f"i{j}" for j in range(1, 5)]].to_numpy(dtype=float)
+                if np.isfinite(cur).all() and n > 1:
+                    i_se = np.maximum(cur.std(axis=0, ddof=1), 1e-3 / math.sqrt(12)) / math.sqrt(n)
+        if not np.isfinite(w_se).any():
+            # only the record: spread of two-reading speeds -> slope error of a line fit
+            for j in range(4):
+                std = _num(st.get(f"w_std{j + 1}"))
+                if math.isfinite(std):
+                    dt = 0.01
+                    m = max(3, int(round(STEADY_AVERAGE / dt)))
+                    sig = std * dt / math.sqrt(2)
+                    w_se[j] = max(sig, floor) * math.sqrt(12.0 / (m * STEADY_AVERAGE ** 2))
+        for j in range(4):
+            u = _num(st.get(f"u{j + 1}", st.get("duty")))
+            if not math.isfinite(u):
+                u = _num(st.get("duty"))
+            mass = _num(st.get(f"wheel_mass{j + 1}"))
+            if not math.isfinite(mass):
+                mass = float(robot.wheel_mass[j])
+            w = _num(st.get(f"w{j + 1}"))
+            if not math.isfinite(w) or not math.isfinite(u):
+                continue
+            cur = _num(st.get(f"i{j + 1}"))
+            rows.append({"run": rid, "step": k, "wheel": j + 1, "u": u,
+                         "direction": float(np.sign(u)) if u else 0.0, "wheel_mass": mass,
+                         "F_N": mass * GRAVITY, "omega": w, "omega_se": float(w_se[j]),
+                         "current": cur, "current_se": float(i_se[j]) if math.isfinite(cur) else float("nan"),
+                         "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True})
+    df = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
+    return df
+
+
+def drive_window(duration: float) -> tuple[float, float]:
+    """Part of a timed run's drive phase used for its mean wheel speeds, s after the start:
+    from a third of the drive (past the acceleration) to its end."""
+    return duration / 3.0, duration
+
+
+def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: float, payload: float,
+              heading: float, measured_forward: float, measured_left: float, trace: pd.DataFrame | None,
+              robot: Any, cpr: float, dphi: np.ndarray | None = None,
+              measured_se: float = DEFAULT_TAPE_SE) -> dict[str, Any]:
+    """One `forward`/`lateral` row from a step's facts and its trace (t from the step start)."""
+    from omnibench.model.geometry import inverse_kinematics
+
+    R = inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
+    floor = quantisation_se(cpr)
+    row: dict[str, Any] = {"run": rid, "step": int(k), **{f"u{j + 1}": float(u[j]) for j in range(4)},
+                           "duration": duration, "t_total": t_total, "payload": payload, "heading": heading,
+                           "measured_forward": measured_forward, "measured_left": measured_left,
+                           "measured_se": measured_se}
+    w = np.full(4, np.nan)
+    w_se = np.full(4, np.nan)
+    a, b = drive_window(duration)
+    if dphi is None or not np.isfinite(dphi).all():
+        dphi = np.full(4, np.nan)
+    if trace is not None and len(trace) >= 4:
+        sel = ((trace["t"] >= a) & (trace["t"] <= b + 1e-9)).to_numpy()
+        if sel.sum() >= 4:
+            w, w_se = slope_fit(trace["t"].to_numpy()[sel],
+                                trace[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel], floor=floor)
+        if not np.isfinite(dphi).all():
+            dphi = trace[[f"phi{j}" for j in range(1, 5)]].to_numpy()[-1]
+    kin = np.linalg.pinv(R) @ dphi
+    row.update({"enc_forward": float(kin[0]), "enc_left": float(kin[1]),
+                **{f"dphi{j + 1}": float(dphi[j]) for j in range(4)},
+                **{f"w{j + 1}": float(w[j]) for j in range(4)},
+                **{f"w_se{j + 1}": float(w_se[j]) for j in range(4)}, "w_t0": a, "w_t1": b})
+    return row
+
+
+def _run_rows(run: Any, rid: str, robot: Any, cpr: float, proc: str) -> tuple[pd.DataFrame, dict]:
+    rows, traces = [], {}
+    for _, st in run.steps.iterrows():
+        k = int(st["step"])
+        t0 = _num(st.get("t_start"))
+        dur = _num(st.get("duration"))
+        s = run.step_samples(k)
+        u = [_num(st.get(f"u{j}")) for j in range(1, 5)]
+        if proc == "forward":
+            dist = _num(st.get("measured_distance"))
+            sign = 1.0 if (np.nanmean(u) >= 0) else -1.0
+            fwd, left = (sign * abs(dist) if math.isfinite(dist) else float("nan")), float("nan")
+        else:
+            fwd, left = _num(st.get("measured_forward")), _num(st.get("measured_left"))
+        tr = _trace(s, t0, cpr) if len(s) >= 4 else None
+        if tr is not None:
+            traces[(rid, k)] = tr
+        dphi = np.array([_num(st.get(f"dphi{j}")) for j in range(1, 5)])
+        payload = _num(st.get("payload")) if st.get("payload") is not None else 0.0
+        rows.append(timed_row(rid, k, u, dur, _num(st.get("t_end")) - t0, payload, _num(st.get("heading")),
+                              fwd, left, tr, robot, cpr, dphi))
+    return pd.DataFrame(rows, columns=RUN_COLUMNS), traces

@@ -1,0 +1,255 @@
+"""Model predictions of every observation, for many parameter sets at once.
+
+`Predictor(obs, procedures)` flattens the observations into one measurement vector (one entry
+per measured number: a steady wheel speed, a mean current, a drive speed, a displacement, an
+energy, a step-response speed sample) and knows which simulations reproduce each entry.
+`predict(robots)` runs those simulations for every robot in one `simulate_batch` call per
+group of equal command timing, and returns the predictions (P robots x n entries).
+
+How each procedure is reproduced (always through the simulator, so any declared term counts):
+
+- sweep: the step's duties held for `SWEEP_HOLD` s upside down with the step's wheel masses;
+  the prediction is the final wheel speed (the model reaches steady state in tens of ms) and,
+  for the current entries, the final motor current.
+- forward / lateral: the duties for `duration` s then zero until `t_total`, on the ground with
+  the payload; the drive speeds use the same straight-line fit over [w_t0, w_t1] as the
+  measurement (on the model's angle at 100 Hz), the displacement is the model's final pose
+  in the start frame (forward runs: signed distance).
+- energy: the logged duties (zero-order hold between samples) on the ground; E_batt at t_total.
+- step_response: the whole run's logged duties upside down; wheel speeds by the same
+  finite difference of successive angle samples as the measurement.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from omnibench.analysis.observations import Observations, slope_fit
+from omnibench.model.geometry import inverse_kinematics
+from omnibench.model.scenario import Scenario
+from omnibench.model.simulator import prepare, simulate_batch, stable_substeps
+
+SWEEP_HOLD = 0.3  # s simulated per sweep steady state
+PHYSICS_DT = 1e-3  # s
+RECORD_DT = 0.01  # s, model angle sampling for the drive-speed fit
+
+#: Observation-vector columns (metadata of every entry)
+ENTRY_COLUMNS = ["procedure", "run", "step", "wheel", "signal", "unit", "measured", "sigma", "speed", "F_N",
+                 "direction", "time", "current", "u", "payload"]
+
+
+@dataclass
+class _Group:
+    """Trajectories sharing command times and duration: simulated in one batch."""
+
+    t_cmd: np.ndarray
+    t_end: float
+    U: list[np.ndarray] = field(default_factory=list)  # each (K, 4)
+    scen: list[Scenario] = field(default_factory=list)
+    # after simulating: how to turn the recorded signals of trajectory k into entries
+    extract: list[Any] = field(default_factory=list)
+    record_every: int = 10
+
+
+class Predictor:
+    """The measurement vector of `obs` (restricted to `procedures`) and its model predictions."""
+
+    def __init__(self, obs: Observations, procedures: Sequence[str] | None = None, *,
+                 effects: dict | None = None) -> None:
+        self.obs = obs
+        self.procedures = [p for p in (procedures or obs.procedures()) if len(obs.table(p))]
+        self.world_effects = effects or {}
+        self.entries: list[dict[str, Any]] = []
+        self.groups: dict[tuple, _Group] = {}
+        for p in self.procedures:
+            getattr(self, f"_build_{p}")(obs.table(p))
+        self.table = pd.DataFrame(self.entries, columns=ENTRY_COLUMNS)
+        self.measured = self.table["measured"].to_numpy(dtype=float)
+        self.sigma = self.table["sigma"].to_numpy(dtype=float)
+
+    # ------------------------------------------------------------------------ building
+    def _add(self, **e: Any) -> int:
+        row = {c: e.get(c, np.nan) for c in ENTRY_COLUMNS}
+        self.entries.append(row)
+        return len(self.entries) - 1
+
+    def _group(self, key: tuple, t_cmd, t_end: float, record_every: int) -> _Group:
+        g = self.groups.get(key)
+        if g is None:
+            g = self.groups[key] = _Group(np.asarray(t_cmd, dtype=float), float(t_end), record_every=record_every)
+        return g
+
+    def _build_sweep(self, df: pd.DataFrame) -> None:
+        for (run, step), rows in df.groupby(["run", "step"], sort=False):
+            U = np.zeros(4)
+            masses = [None] * 4
+            for _, r in rows.iterrows():
+                U[int(r["wheel"]) - 1] = r["u"]
+                masses[int(r["wheel"]) - 1] = float(r["wheel_mass"])
+            fill = next((m for m in masses if m is not None), 1.0)
+            masses = tuple(m if m is not None else fill for m in masses)
+            g = self._group(("sweep",), [0.0], SWEEP_HOLD, int(round(SWEEP_HOLD / PHYSICS_DT)))
+            idx = []
+            for _, r in rows.iterrows():
+                j = int(r["wheel"])
+                meta = dict(procedure="sweep", run=run, step=int(step), wheel=j, speed=r["omega"], F_N=r["F_N"],
+                            direction=r["direction"], time=np.nan, current=r["current"], u=r["u"], payload=0.0)
+                k = self._add(signal="omega", unit="rad/s", measured=r["omega"], sigma=r["omega_se"], **meta)
+                idx.append(("omega", j, k))
+                if math.isfinite(r["current"]):
+                    k = self._add(signal="current", unit="A", measured=r["current"], sigma=r["current_se"], **meta)
+                    idx.append(("current", j, k))
+            g.U.append(U[None, :])
+            g.scen.append(Scenario(mode="upside_down", wheel_mass=masses, effects=self.world_effects))
+            g.extract.append(("sweep", idx))
+
+    def _build_timed(self, df: pd.DataFrame, proc: str) -> None:
+        for _, r in df.iterrows():
+            u = np.array([r[f"u{j}"] for j in range(1, 5)], dtype=float)
+            dur, tot = float(r["duration"]), float(r["t_total"])
+            if not (math.isfinite(dur) and math.isfinite(tot)):
+                continue
+            g = self._group((proc, round(dur, 6), round(tot, 6)), [0.0, dur], tot, int(round(RECORD_DT / PHYSICS_DT)))
+            meta = dict(procedure=proc, run=r["run"], step=int(r["step"]), F_N=np.nan, time=np.nan,
+                        current=np.nan, payload=r["payload"])
+            idx = []
+            for j in range(1, 5):
+                if math.isfinite(r[f"w{j}"]):
+                    k = self._add(signal="w", unit="rad/s", wheel=j, measured=r[f"w{j}"], sigma=r[f"w_se{j}"],
+                                  speed=r[f"w{j}"], direction=float(np.sign(r[f"u{j}"])), u=r[f"u{j}"], **meta)
+                    idx.append(("w", j, k))
+            for sig, col in (("forward", "measured_forward"), ("left", "measured_left")):
+                if math.isfinite(r[col]):
+                    k = self._add(signal=sig, unit="m", wheel=0, measured=r[col], sigma=r["measured_se"],
+                                  speed=np.nan, direction=float(np.sign(r[col])), u=np.nan, **meta)
+                    idx.append((sig, 0, k))
+            g.U.append(np.stack([u, np.zeros(4)]))
+            g.scen.append(Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects))
+            g.extract.append((proc, idx, (float(r["w_t0"]), float(r["w_t1"]))))
+
+    def _build_forward(self, df: pd.DataFrame) -> None:
+        self._build_timed(df, "forward")
+
+    def _build_lateral(self, df: pd.DataFrame) -> None:
+        self._build_timed(df, "lateral")
+
+    def _build_energy(self, df: pd.DataFrame) -> None:
+        for _, r in df.iterrows():
+            tr = self.obs.traces.get((r["run"], int(r["step"])))
+            if tr is None or not math.isfinite(r["t_total"]):
+                continue
+            t_cmd, U = commands_from_trace(tr)
+            key = ("energy", r["run"], int(r["step"]))
+            g = self._group(key, t_cmd, float(r["t_total"]), int(round(RECORD_DT / PHYSICS_DT)))
+            k = self._add(procedure="energy", run=r["run"], step=int(r["step"]), wheel=0, signal="energy", unit="J",
+                          measured=r["measured_J"], sigma=np.nan, payload=r["payload"])
+            g.U.append(U)
+            g.scen.append(Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects))
+            g.extract.append(("energy", [("energy", 0, k)]))
+
+    def _build_step_response(self, df: pd.DataFrame) -> None:
+        for run, rows in df.groupby("run", sort=False):
+            parts = [self.obs.traces[(run, int(s))] for s in rows["step"] if (run, int(s)) in self.obs.traces]
+            if not parts:
+                continue
+            tr = pd.concat(parts, ignore_index=True).sort_values("t").reset_index(drop=True)
+            t = tr["t"].to_numpy(dtype=float)
+            t0 = t[0]
+            ts = t - t0
+            t_cmd, U = commands_from_trace(tr.assign(t=ts))
+            key = ("step_response", run)
+            g = self._group(key, t_cmd, float(ts[-1]) + PHYSICS_DT, 1)
+            phi = tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(dtype=float)
+            dt = np.diff(ts)
+            w = np.diff(phi, axis=0) / dt[:, None]
+            tm = 0.5 * (ts[1:] + ts[:-1])
+            u_log = tr[[f"u{j}" for j in range(1, 5)]].to_numpy(dtype=float)
+            idx = []
+            for j in range(4):
+                for n in range(len(tm)):
+                    k = self._add(procedure="step_response", run=run, step=-1, wheel=j + 1, signal="omega",
+                                  unit="rad/s", measured=w[n, j], sigma=np.nan, speed=w[n, j], F_N=np.nan,
+                                  direction=float(np.sign(u_log[n, j])), time=tm[n] + t0, u=u_log[n, j],
+                                  payload=0.0)
+                    idx.append(("omega_fd", j + 1, k))
+            g.U.append(U)
+            g.scen.append(Scenario(mode="upside_down", effects=self.world_effects))
+            g.extract.append(("step_response", idx, ts))
+
+    # ------------------------------------------------------------------------ predicting
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def substeps(self, robots: Sequence[Any]) -> int:
+        """Integrator sub-steps that keep every robot's friction regularisation stable."""
+        lam = 0.0
+        for g in self.groups.values():
+            for s in {(sc.mode, sc.payload) : sc for sc in g.scen}.values():
+                for r in robots:
+                    lam = max(lam, prepare(r, s).substeps_lambda)
+        return stable_substeps(lam, PHYSICS_DT)
+
+    def predict(self, robots: Sequence[Any], *, substeps: int | None = None) -> np.ndarray:
+        """Predictions (len(robots), len(self)) of every entry, one batch per command-timing group."""
+        P = len(robots)
+        out = np.full((P, len(self.entries)), np.nan)
+        for g in self.groups.values():
+            n = len(g.U)
+            rob = [r for r in robots for _ in range(n)]
+            scen = g.scen * P
+            U = np.stack(g.U * P)
+            t_end = g.t_end
+            res = simulate_batch(rob, scen, g.t_cmd, U, t_end, dt=PHYSICS_DT, record_every=g.record_every,
+                                 substeps=substeps)
+            for p in range(P):
+                for k, ex in enumerate(g.extract):
+                    self._extract(out[p], res, p * n + k, ex, robots[p])
+        return out
+
+    def _extract(self, out: np.ndarray, res, b: int, ex: tuple, robot: Any) -> None:
+        kind = ex[0]
+        if kind == "sweep":
+            for sig, j, k in ex[1]:
+                name = f"phi_dot{j}_free" if sig == "omega" else f"i{j}"
+                out[k] = res.signal(name)[b, -1]
+        elif kind in ("forward", "lateral"):
+            idx, (a, bb) = ex[1], ex[2]
+            t = res.t
+            sel = (t >= a - 1e-9) & (t <= bb + 1e-9)
+            phi = np.stack([res.signal(f"phi{j}")[b] for j in range(1, 5)], axis=1)
+            w, _ = slope_fit(t[sel], phi[sel])
+            x, y = res.signal("x")[b, -1], res.signal("y")[b, -1]
+            for sig, j, k in idx:
+                if sig == "w":
+                    out[k] = w[j - 1]
+                elif sig == "forward":
+                    out[k] = (math.copysign(math.hypot(x, y), x) if kind == "forward" else x)
+                else:
+                    out[k] = y
+        elif kind == "energy":
+            for _, _, k in ex[1]:
+                out[k] = res.signal("E_batt")[b, -1]
+        elif kind == "step_response":
+            ts = ex[2]
+            tt = res.t
+            ph = [np.interp(ts, tt, res.signal(f"phi{j}")[b]) for j in range(1, 5)]
+            dts = np.diff(ts)
+            w = [np.diff(p) / dts for p in ph]
+            m = len(dts)
+            for n, (_, j, k) in enumerate(ex[1]):
+                out[k] = w[j - 1][n % m]
+
+
+def commands_from_trace(tr: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(t_cmd (K,), U (K, 4)): the logged duties as a zero-order-hold schedule (only changes kept)."""
+    t = tr["t"].to_numpy(dtype=float)
+    U = np.nan_to_num(tr[[f"u{j}" for j in range(1, 5)]].to_numpy(dtype=float))
+    keep = np.ones(len(t), dtype=bool)
+    keep[1:] = np.any(np.diff(U, axis=0) != 0, axis=1)
+    tc = np.maximum(t[keep], 0.0)
+    return tc, U[keep]
