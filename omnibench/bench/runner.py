@@ -137,6 +137,9 @@ class Runner:
         self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
         self.keep_every = self.watchdog_s / 4.0
+        #: the board client feeds the watchdog itself (omnibench.link); else the runner repeats
+        #: the current duties (or a keepalive) every quarter watchdog of board time
+        self.self_heartbeat = bool(getattr(board, "self_heartbeat", False))
         self._last_cmd_t = -math.inf
         self._duties = (0.0, 0.0, 0.0, 0.0)
         self.done_time = 0.0
@@ -175,7 +178,8 @@ class Runner:
             self._stop()
             raise BoardError(f"board reported fault {fault_names(int(s.faults))} during step {step.index} "
                              f"({step.label}); motors stopped")
-        if self._duties != (0.0, 0.0, 0.0, 0.0) and s.t - self._last_cmd_t >= self.keep_every:
+        if (not self.self_heartbeat and self._duties != (0.0, 0.0, 0.0, 0.0)
+                and s.t - self._last_cmd_t >= self.keep_every):
             self._command(self._duties, s.t)  # keep the watchdog fed with the same duties
         return s
 
@@ -199,7 +203,7 @@ class Runner:
                 while k + 1 < len(schedule) and rel >= schedule[k + 1][0]:
                     k += 1
                     self._command(schedule[k][1], s.t)
-            elif s.t - self._last_cmd_t >= self.keep_every:
+            elif not self.self_heartbeat and s.t - self._last_cmd_t >= self.keep_every:
                 self.board.keepalive()
                 self._last_cmd_t = s.t
             if s.t - last_progress >= 0.2:

@@ -1,0 +1,99 @@
+"""Adapts the board client of omnibench.link (`Board`) to the runner's `BenchBoard` interface.
+
+The client already keeps the board's watchdog fed (it PINGs on board time while reading and
+on wall time otherwise), unwraps the board clock and detects a lost link or a board reset.
+This adapter only reshapes: one sample at a time, identity as a dict, pose as a tuple.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections import deque
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from omnibench.bench.board import Telemetry
+
+
+class LinkBoard:
+    """A `BenchBoard` over `omnibench.link.board.Board`."""
+
+    #: the link client sends its own heartbeat; the runner need not repeat commands
+    self_heartbeat = True
+
+    def __init__(self, board: Any) -> None:
+        self.board = board
+        hello = board.hello
+        self.hello: dict[str, Any] = hello.as_dict() if hello is not None else {}
+        caps = set(hello.capabilities) if hello is not None else set()
+        self.is_simulator = "SIMULATOR" in caps
+        self.has_battery_current = "BATTERY_CURRENT" in caps
+        self.has_motor_current = "MOTOR_CURRENT" in caps
+        self._buf: deque[Any] = deque()
+        self.ammeter_attached = False
+
+    @classmethod
+    @contextlib.contextmanager
+    def open(cls, url: str, timeout: float = 2.0) -> Iterator["LinkBoard"]:
+        """Open `url` with the link client; leaving the block stops the motors and closes the port."""
+        from omnibench.link.board import Board
+
+        with Board.open(url, timeout=timeout) as board:
+            yield cls(board)
+
+    def configure(self, *, telemetry_hz: float, watchdog_s: float) -> None:
+        self.board.clear_faults()
+        self.board.configure(telemetry_hz=int(round(telemetry_hz)), watchdog_s=watchdog_s)
+
+    def reset_encoders(self) -> None:
+        self.board.reset_encoders()
+
+    def set_duties(self, duties: Sequence[float]) -> None:
+        self.board.set_duties(duties)
+
+    def stop(self) -> None:
+        self.board.stop()
+
+    def keepalive(self) -> None:
+        """Nothing to do: the link client PINGs on its own."""
+
+    def read(self, timeout: float) -> Telemetry:
+        """The next sample (the client raises BoardError if the link is lost)."""
+        while not self._buf:
+            for s in self.board.samples(0.0):
+                self._buf.append(s)
+        s = self._buf.popleft()
+        ib = s.battery_current
+        am = getattr(s, "ammeter_current", math.nan)
+        if am is not None and not math.isnan(am):
+            ib = am  # an external ammeter, when attached, is the battery current
+        elif not self.has_battery_current:
+            ib = None
+        return Telemetry(
+            t=s.t, seq=s.seq, encoder=tuple(s.encoder),
+            motor_current=tuple(s.motor_current) if self.has_motor_current else None,
+            battery_voltage=s.battery_voltage, battery_current=ib, faults=int(s.faults),
+            duty=tuple(s.duty),
+        )
+
+    def discard_pending(self) -> int:
+        n = len(self._buf) + len(self.board.read_samples())
+        self._buf.clear()
+        return n
+
+    def sim_set_world(self, *, mode: str | None = None, payload: float | None = None,
+                      wheel_mass: Sequence[float] | None = None) -> None:
+        self.board.sim_set_world(mode=mode, payload=payload, wheel_mass=wheel_mass)
+
+    def sim_truth(self) -> tuple[float, float, float]:
+        p = self.board.sim_truth()
+        return (p.x, p.y, p.psi)
+
+    def attach_ammeter(self, url: str, period_s: float = 0.05) -> None:
+        """Log the battery current from a separate ammeter on its own serial URL."""
+        from omnibench.link import ammeter as am  # type: ignore[attr-defined]
+
+        self.board.attach_ammeter(am.open_ammeter(url), period_s)  # pragma: no cover - depends on issue 3
+        self.ammeter_attached = True
+        self.has_battery_current = True

@@ -1,0 +1,71 @@
+"""`omnibench sweep | forward | lateral | energy`: run one Section III/IV procedure on a board.
+
+Each command validates the robot file, the procedure file, the robot's limits and the answers
+file before it opens the port, so bad input never moves a motor. Ctrl-C stops the motors and
+marks the run aborted; `--resume RUN_DIR` continues it from its last complete step.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import click
+
+PROCEDURE_OF = {
+    "sweep": "upside_down_sweep",
+    "forward": "forward_runs",
+    "lateral": "lateral_runs",
+    "energy": "energy_trajectories",
+}
+
+HELP = {
+    "sweep": "III.i  Upside-down voltage sweep: steady wheel speed per duty, direction and wheel set.",
+    "forward": "III.ii  Forward/backward runs on the ground; the operator measures the distance (no-slip check).",
+    "lateral": "III.iii  Runs with lateral speed and payloads; the operator measures the displacement.",
+    "energy": "IV  Open-loop trajectories (square, circle, figure eight, spin) with the battery current logged.",
+}
+
+
+def _make(name: str) -> click.Command:
+    procedure = PROCEDURE_OF[name]
+
+    @click.command(name, help=HELP[name] + f"\n\nDefault procedure file: procedures/{procedure}.toml "
+                                           "(copy it and edit). Use --port sim:// for the simulated robot.")
+    @click.option("--port", metavar="URL", help="Serial device (/dev/ttyACM0), or sim://... for the simulated robot.")
+    @click.option("--procedure", "procedure_file", type=click.Path(path_type=Path), metavar="FILE",
+                  help=f"Procedure file (TOML). Default: the shipped {procedure}.toml.")
+    @click.option("--robot", "robot_file", type=click.Path(path_type=Path), metavar="FILE",
+                  help="Robot file (TOML). Default: the real Omnibot's numbers.")
+    @click.option("--out", type=click.Path(path_type=Path), default=Path("runs"), show_default=True,
+                  help="Folder that receives the run directory.")
+    @click.option("--dry-run", is_flag=True, help="Print the plan, its duration and peak voltage/current; move nothing.")
+    @click.option("--resume", type=click.Path(path_type=Path), metavar="RUN_DIR",
+                  help="Continue an interrupted run from its last complete step.")
+    @click.option("--answers", type=click.Path(path_type=Path), metavar="FILE",
+                  help="Operator answers (TOML) for unattended runs.")
+    @click.option("--measurement-noise", type=float, default=None, metavar="M",
+                  help="Simulation only: the simulated operator's tape noise, m (default from the procedure file).")
+    @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+    def cmd(port: str | None, procedure_file: Path | None, robot_file: Path | None, out: Path,
+            dry_run: bool, resume: Path | None, answers: Path | None, measurement_noise: float | None,
+            as_json: bool) -> None:
+        from omnibench.bench.session import run_command
+
+        def echo(line: str) -> None:
+            click.echo(line, err=as_json)
+
+        result: dict[str, Any] = run_command(
+            procedure, port=port, procedure_file=procedure_file, robot_file=robot_file, out=out,
+            dry_run=dry_run, resume=resume, answers=answers, echo=echo,
+            progress=not as_json and sys.stderr.isatty(), measurement_noise=measurement_noise,
+        )
+        if as_json:
+            click.echo(json.dumps(result, indent=2, default=str))
+
+    return cmd
+
+
+commands: dict[str, click.Command] = {name: _make(name) for name in PROCEDURE_OF}
