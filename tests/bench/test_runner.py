@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from fakeboard import FakeBoard  # noqa: E402
 
-from omnibench.bench.procedure import default_procedure_path, load_plan  # noqa: E402
+from omnibench.bench.procedure import load_plan  # noqa: E402
 from omnibench.bench.runner import steady_state  # noqa: E402
 from omnibench.bench.session import _run_on_board, load_robot_file  # noqa: E402
 from omnibench.model import default_robot  # noqa: E402
@@ -58,12 +58,17 @@ def closed_form(robot, u, wheel_mass):
     return math.copysign(brentq(f, 0.0, abs(u) * robot.V_batt / robot.k_e), u)
 
 
+SMALL = {"upside_down_sweep": "small_sweep.toml", "forward_runs": "small_forward.toml",
+         "lateral_runs": "small_lateral.toml", "energy_trajectories": "small_energy.toml"}
+HERE = Path(__file__).parent
+
+
 def _run(procedure, board, tmp_path, resume=None):
     robot, text, name = load_robot_file(None)
     if resume:
         plan = load_plan(Path(resume) / "procedure.toml", robot)
     else:
-        plan = load_plan(default_procedure_path(procedure), robot)
+        plan = load_plan(HERE / "procedures" / SMALL[procedure], robot)
     return _run_on_board(procedure, plan, robot, text, name, board, port="fake://", out=tmp_path,
                          resume=resume, answer_op=None, echo=lambda line: None, progress=False,
                          measurement_noise=None)
@@ -73,7 +78,7 @@ def test_sweep_speeds_match_closed_form(tmp_path):
     res = _run("upside_down_sweep", FakeBoard(), tmp_path)
     run = read_run(res["run"])
     robot = default_robot()
-    assert run.status == "complete" and res["steady_steps"] == len(run.steps) == 32
+    assert run.status == "complete" and res["steady_steps"] == len(run.steps) == 12
     for _, s in run.steps.iterrows():
         expect = closed_form(robot, s["duty"], s["wheel_mass1"])
         # encoder quantisation over the 0.3 s averaging window: a few 0.01 rad/s
@@ -83,10 +88,10 @@ def test_sweep_speeds_match_closed_form(tmp_path):
 
 def test_forward_passes_and_lateral_reports_slip(tmp_path):
     fwd = _run("forward_runs", FakeBoard(), tmp_path)
-    assert fwd["no_slip_passed"] == fwd["steps"] == 12
+    assert fwd["no_slip_passed"] == fwd["steps"] == 4
     lat = _run("lateral_runs", FakeBoard(), tmp_path)
     run = read_run(lat["run"])
-    assert lat["no_slip_failed"] == list(range(18))
+    assert lat["no_slip_failed"] == list(range(8))
     # the displacement the encoders imply through pinv(R) still matches the tape
     assert run.steps["kin_residual"].max() < 0.02
     # pure lateral runs (heading 90 deg): the wheels' rolling distance is ~0, the tape says ~0.3 m
@@ -97,7 +102,7 @@ def test_forward_passes_and_lateral_reports_slip(tmp_path):
 def test_energy_trajectories_log_battery_energy(tmp_path):
     res = _run("energy_trajectories", FakeBoard(), tmp_path)
     run = read_run(res["run"])
-    assert set(run.steps["trajectory"]) == {"square", "circle", "figure_eight", "spin"}
+    assert list(run.steps["trajectory"]) == ["square", "spin"]
     assert (run.steps["energy"] > 0).all() and run.steps["has_current"].all()
     # the energy is the integral of V*I over the step's samples
     s = run.step_samples(0)
@@ -105,7 +110,7 @@ def test_energy_trajectories_log_battery_energy(tmp_path):
     assert e == pytest.approx(run.steps["energy"].iloc[0], rel=1e-9)
 
 
-@pytest.mark.parametrize("interrupt_after", [1, 37, 400, 1234, 1800])
+@pytest.mark.parametrize("interrupt_after", [1, 37, 333, 777])
 def test_ctrl_c_stops_motors_and_resume_completes_without_duplicates(tmp_path, interrupt_after):
     board = FakeBoard(interrupt_after=interrupt_after)
     with pytest.raises(KeyboardInterrupt):
@@ -120,8 +125,7 @@ def test_ctrl_c_stops_motors_and_resume_completes_without_duplicates(tmp_path, i
     res = _run("upside_down_sweep", FakeBoard(), tmp_path, resume=run_dir)
     run = read_run(run_dir)
     assert res["status"] == run.status == "complete"
-    assert sorted(run.steps["step"]) == list(range(32))
-    assert list(run.steps["step"]) == list(range(32))
+    assert list(run.steps["step"]) == list(range(12))
     assert list(run.steps["step"][: len(done_before)]) == done_before
     assert len(run.samples) > n_before
     assert [s["status"] for s in run.metadata["segments"]] == ["aborted", "complete"]
