@@ -305,6 +305,7 @@ class _Problem:
         self.substeps = max(1, pred.substeps([robot])) if len(pred) else 1
         self.nfev = 0
         self._cache: tuple[np.ndarray, np.ndarray] | None = None
+        self._jcache: tuple[np.ndarray, np.ndarray] | None = None
 
     def robot_at(self, x: np.ndarray) -> Any:
         return with_params(self.robot, {p: float(v) for p, v in zip(self.free, x * self.scale)})
@@ -325,26 +326,31 @@ class _Problem:
     def weighted(self, f: np.ndarray) -> np.ndarray:
         return ((self.pred.measured - f) / self.sigma)[self.used]
 
-    def jacobian(self, x: np.ndarray, extra: Sequence[str] = ()) -> np.ndarray:
-        """d(weighted residual)/dx (n_used, n_free [+ extra fixed parameters, per unit of their scale])."""
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """d(weighted residual)/dx (n_used, n_free), forward differences in one batch (cached per x)."""
+        if self._jcache is not None and np.array_equal(self._jcache[0], x):
+            return self._jcache[1]
         xs = [x]
         for j in range(len(x)):
             xp = x.copy()
             xp[j] += FD_STEP
             xs.append(xp)
-        robots = [self.robot_at(xi) for xi in xs]
-        extra_h = []
-        for name in extra:
-            h = FD_STEP * param_scale(self.robot, name)
-            extra_h.append(h / param_scale(self.robot, name))
-            robots.append(with_params(robots[0], {name: param_value(self.robot, name) + h}))
+        F = self.predict(xs)
+        self._cache = (x.copy(), F[0])
+        cols = [(F[1 + j] - F[0]) / FD_STEP for j in range(len(x))]
+        J = -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None]
+        self._jcache = (x.copy(), J)
+        return J
+
+    def extra_columns(self, x: np.ndarray, names: Sequence[str]) -> np.ndarray:
+        """Jacobian columns of parameters held fixed (per unit of their scale), at x."""
+        base = self.robot_at(x)
+        robots = [base] + [with_params(base, {n: param_value(self.robot, n) + FD_STEP * param_scale(self.robot, n)})
+                           for n in names]
         self.nfev += len(robots)
         F = self.pred.predict(robots, substeps=self._sub(robots))
-        f0 = F[0]
-        cols = [(F[1 + j] - f0) / FD_STEP for j in range(len(x))]
-        cols += [(F[1 + len(x) + k] - f0) / extra_h[k] for k in range(len(extra))]
-        J = -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None] if cols else np.zeros((int(self.used.sum()), 0))
-        return J
+        cols = [(F[1 + k] - F[0]) / FD_STEP for k in range(len(names))]
+        return -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None]
 
 
 def _scaled_svd(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -380,6 +386,22 @@ def _fix_priority(name: str) -> int:
 
 def _combination(weights: Mapping[str, float]) -> str:
     return " ".join(f"{'+' if w >= 0 else '-'} {abs(w):.2f} {n}" for n, w in weights.items()).lstrip("+ ")
+
+
+#: Warm-start order and the parameters each procedure is designed to measure (paper III.i-iii).
+STAGES = (("sweep", {"a", "b", "c", "k_t", "k_e", "R_a", "eta"}), ("forward", {"C_r"}),
+          ("lateral", {"a_r", "b_r", "c_r"}))
+
+
+def _solve(prob: "_Problem", names: list[str], robot: Any, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded trust-region least squares from x0; returns (x, weighted Jacobian at x)."""
+    lo = np.array([param_bounds(robot, p)[0] for p in names]) / prob.scale
+    hi = np.array([param_bounds(robot, p)[1] for p in names]) / prob.scale
+    x0 = np.clip(x0, lo, hi)
+    x0 = np.where(x0 <= lo, lo + 1e-9 * np.maximum(1.0, np.abs(lo)), x0)
+    sol = optimize.least_squares(prob.residual, x0, jac=prob.jacobian, bounds=(lo, hi), method="trf",
+                                 x_scale=1.0, max_nfev=max_nfev, ftol=1e-7, xtol=1e-7, gtol=1e-9)
+    return sol.x, prob.jacobian(sol.x)
 
 
 def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
@@ -459,23 +481,23 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     if not active:
         raise UserError("none of the free parameters can be identified from these observations: "
                         + "; ".join(f"{p}: {v.reason}" for p, v in verdicts.items()))
-    # ---- the fit proper (twice when some sigmas were unknown: second pass with group RMS sigmas)
-    sub_fixed = with_params(start, {p: param_value(robot, p) for p in fixed})
-    prob = _Problem(sub_fixed, pred, active, used, sigma)
-    xa = np.array([param_value(start, p) for p in active]) / prob.scale
-    lo = np.array([param_bounds(robot, p)[0] for p in active]) / prob.scale
-    hi = np.array([param_bounds(robot, p)[1] for p in active]) / prob.scale
-    xa = np.clip(xa, lo + 1e-12 * np.abs(lo), hi)
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        return prob.jacobian(x)
-
+    # ---- warm start: the paper's order (III.i -> III.ii -> III.iii), each procedure's own parameters
+    current = with_params(start, {p: param_value(robot, p) for p in fixed})
+    if len(procs) > 1:
+        for proc, names in STAGES:
+            sub = [p for p in active if p in names]
+            if proc not in procs or not sub:
+                continue
+            mask = (pred.table["procedure"] == proc).to_numpy()
+            sp = _Problem(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
+            xs, _ = _solve(sp, sub, robot, np.array([param_value(current, p) for p in sub]) / sp.scale, max_nfev)
+            current = sp.robot_at(xs)
+    # ---- the joint fit (twice when some sigmas were unknown: second pass with group RMS sigmas)
+    prob = _Problem(current, pred, active, used, sigma)
+    xa = np.array([param_value(current, p) for p in active]) / prob.scale
     passes = 2 if unknown[used].any() else 1
-    sol = None
     for pass_ in range(passes):
-        sol = optimize.least_squares(prob.residual, xa, jac=jac, bounds=(lo, hi), method="trf",
-                                     x_scale=1.0, max_nfev=max_nfev, ftol=1e-10, xtol=1e-10, gtol=1e-10)
-        xa = sol.x
+        xa, J = _solve(prob, active, robot, xa, max_nfev)
         if pass_ + 1 < passes:
             f = prob.predict([xa])[0]
             res = pred.measured - f
@@ -484,11 +506,10 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                 rms = float(np.sqrt(np.mean(res[m] ** 2))) if m.any() else 1.0
                 sigma[(groups == g) & unknown] = max(rms, 1e-12)
             prob.sigma = sigma
-    xa = sol.x
+            prob._jcache = None
     fitted_robot = prob.robot_at(xa)
-    f = prob.predict([xa])[0]
+    f = prob._cache[1] if prob._cache is not None and np.array_equal(prob._cache[0], xa) else prob.predict([xa])[0]
     r = prob.weighted(f)
-    J = prob.jacobian(xa)
     n_used = int(used.sum())
     dof = max(n_used - len(active), 1)
     chi2 = float(r @ r)
@@ -517,7 +538,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     if "forward" in procs and "C_r" in active and "c" not in free and "sweep" not in procs:
         nuisance.append("c")
     for nu in nuisance:
-        Jx = prob.jacobian(xa, extra=[nu])
+        Jx = np.column_stack([J, prob.extra_columns(xa, [nu])])
         s, Vt, _ = _scaled_svd(Jx)
         ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
         if ratio < CONFOUND_TOL:
