@@ -269,9 +269,9 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         writer.finish(status, reason)
         restore()
         if status != "complete":
-            echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
+            click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
                  f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
-                                                   if status == "aborted" else ""))
+                                                   if status == "aborted" else ""), err=True)
     from omnibench.runs import read_run
 
     run = read_run(writer.path)

@@ -1,0 +1,215 @@
+"""Every procedure end to end through the real serial code path: `sim://` in process, the
+pseudo-terminal of `omnibench sim serve`, Ctrl-C with resume, and bad input stopped early."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from omnibench.cli import main
+from omnibench.model import default_robot
+from omnibench.runs import read_run
+from omnibench.sim.testing import spawn_server
+
+HERE = Path(__file__).parent
+PROC = HERE / "procedures"
+FILES = {"sweep": "small_sweep.toml", "forward": "small_forward.toml",
+         "lateral": "small_lateral.toml", "energy": "small_energy.toml"}
+
+
+def omnibench(capsys, *args: str) -> tuple[int, str, str]:
+    """Run the CLI in process; (exit code, stdout, stderr)."""
+    code = 0
+    try:
+        main(list(args))
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def closed_form(robot, u, wheel_mass):
+    """Upside-down steady wheel speed, rad/s (see tests/bench/test_runner.py)."""
+    from scipy.optimize import brentq
+
+    k = robot.eta * robot.k_t / robot.R_a
+    load = 1 + robot.c * wheel_mass * 9.80665
+    eps = robot.sign_width_phi
+
+    def f(w):
+        return k * (abs(u) * robot.V_batt - robot.k_e * w) - load * (robot.a * w + robot.b * w / math.sqrt(w * w + eps * eps))
+
+    return math.copysign(brentq(f, 0.0, abs(u) * robot.V_batt / robot.k_e), u)
+
+
+def check_run(command: str, run_dir: str) -> None:
+    """The recorded data reproduce the simulated world."""
+    run = read_run(run_dir)
+    assert run.status == "complete"
+    assert list(run.steps["step"]) == list(range(run.metadata["steps_planned"]))
+    assert run.metadata["board"]["capabilities"] and "SIMULATOR" in run.metadata["board"]["capabilities"]
+    steps = run.steps
+    if command == "sweep":
+        robot = default_robot()
+        assert steps["steady"].all()
+        for _, s in steps.iterrows():
+            expect = closed_form(robot, s["duty"], s["wheel_mass1"])
+            for j in range(1, 5):
+                # encoder quantisation (980 counts/rev) over a 0.3 s fit: ~0.02 rad/s
+                assert s[f"w{j}"] == pytest.approx(expect, abs=0.05), (s["label"], j)
+        # heavier wheels load the axle more: slower at the same duty (the c term)
+        std = steps[(steps.wheel_set == "standard") & (steps.duty == 0.7)]["w1"].iloc[0]
+        heavy = steps[(steps.wheel_set == "weighted") & (steps.duty == 0.7)]["w1"].iloc[0]
+        assert heavy < std
+    elif command == "forward":
+        assert steps["no_slip"].all()
+        assert (abs(steps["measured_distance"] - steps["encoder_distance"].abs()) < 0.015).all()
+    elif command == "lateral":
+        assert not steps["no_slip"].any()  # the rollers turn: slip is reported on every run
+        assert (steps["kin_residual"] < 0.02).all()  # yet pinv(R) dphi matches the tape
+        assert sorted(set(steps["payload"])) == [0.0, 3.0]
+    elif command == "energy":
+        assert steps["has_current"].all() and (steps["energy"] > 0).all()
+        s = run.step_samples(0)
+        assert np.trapezoid(s["V_batt"] * s["I_batt"], s["t"]) == pytest.approx(steps["energy"].iloc[0])
+
+
+@pytest.mark.parametrize("command", list(FILES))
+def test_procedure_over_sim_url(capsys, tmp_path, command):
+    code, out, err = omnibench(capsys, command, "--port", "sim://?seed=5", "--procedure", str(PROC / FILES[command]),
+                               "--out", str(tmp_path), "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["status"] == "complete"
+    check_run(command, res["run"])
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    srv = spawn_server(tmp_path_factory.mktemp("serve"), "--clock", "fast", "--seed", "3")
+    yield srv
+    srv.stop()
+
+
+def test_all_procedures_over_sim_serve(capsys, tmp_path, served):
+    for command in FILES:
+        code, out, err = omnibench(capsys, command, "--port", served.path, "--procedure", str(PROC / FILES[command]),
+                                   "--out", str(tmp_path), "--json")
+        assert code == 0, err
+        check_run(command, json.loads(out)["run"])
+    st = served.status()
+    assert st["duties"] == [0.0, 0.0, 0.0, 0.0]
+
+
+def _wait_rows(path: Path, rows: int, proc: subprocess.Popen, limit_s: float = 120.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline and proc.poll() is None:
+        files = list(path.glob("*/samples.csv"))
+        if files and sum(1 for _ in open(files[0])) > rows:
+            return
+        time.sleep(0.01)
+    raise AssertionError("the sweep did not record enough samples")
+
+
+def test_sigint_stops_motors_marks_aborted_and_resume_completes(tmp_path):
+    seed = random.randrange(1_000_000)
+    rng = random.Random(seed)
+    print(f"random seed {seed}")  # shown on failure
+    srv = spawn_server(tmp_path, "--clock", "realtime", "--speed", "2", "--seed", str(seed))
+    try:
+        out = tmp_path / "runs"
+        cmd = [sys.executable, "-m", "omnibench", "sweep", "--port", srv.path, "--procedure",
+               str(PROC / "sigint_sweep.toml"), "--out", str(out)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _wait_rows(out, rng.randint(5, 700), proc)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert "aborted" in err and "--resume" in err
+        time.sleep(0.3)
+        st = srv.status()
+        assert st["duties"] == [0.0, 0.0, 0.0, 0.0] and st["serving"]
+        (run_dir,) = list(out.iterdir())
+        run = read_run(run_dir)
+        assert run.status == "aborted"
+        done = list(run.steps["step"]) if len(run.steps) else []
+        assert done == list(range(len(done))) and len(done) < 12
+        n = len(run.samples)
+        res = subprocess.run(cmd[:4] + ["--resume", str(run_dir), "--json"] + ["--port", srv.path],
+                             capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        run = read_run(run_dir)
+        assert run.status == "complete"
+        assert list(run.steps["step"]) == list(range(12))  # none missing, none twice
+        assert len(run.samples) > n
+        assert [s["status"] for s in run.metadata["segments"]] == ["aborted", "complete"]
+        assert srv.status()["duties"] == [0.0, 0.0, 0.0, 0.0]
+    finally:
+        srv.stop()
+
+
+BAD_TOML = 'procedure = "upside_down_sweep"\n[sweep\nduties = [0.2]\n'
+HIGH_V = 'procedure = "upside_down_sweep"\n[sweep]\nvoltages = ["6 V", "40 V"]\n'
+
+
+@pytest.mark.parametrize(
+    "text, args, message",
+    [
+        (BAD_TOML, ["--port", "/dev/omnibench-no-such-port"], "not valid TOML"),
+        (HIGH_V, ["--port", "/dev/omnibench-no-such-port"], "40 V is out of range"),
+        (HIGH_V.replace("40 V", "12 V"), [], "no --port given"),
+        (HIGH_V.replace("40 V", "12 V"), ["--port", "/dev/omnibench-no-such-port"], "cannot open"),
+    ],
+)
+def test_bad_input_one_line_error_before_any_motor_moves(capsys, tmp_path, text, args, message):
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    out = tmp_path / "runs"
+    code, _, err = omnibench(capsys, "sweep", "--procedure", str(p), "--out", str(out), *args)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], err
+    assert not out.exists()  # nothing was recorded: the run never started
+
+
+def test_dry_run_prints_plan_and_refuses_over_limit(capsys, tmp_path):
+    code, out, err = omnibench(capsys, "sweep", "--dry-run", "--procedure", str(PROC / "small_sweep.toml"))
+    assert code == 0, err
+    assert "12 steps" in out and "peak voltage 17.3 V" in out and "at most" in out
+    code, out, _ = omnibench(capsys, "lateral", "--dry-run", "--json")
+    res = json.loads(out)
+    assert res["steps"] == 18 and res["peak_motor_current_A"] < res["limits"]["max_current_A"]
+    robot = Path(__file__).resolve().parents[2] / "omnibench" / "model" / "omnibot.toml"
+    weak = tmp_path / "weak.toml"
+    weak.write_text(robot.read_text().replace("max_current = 13.0", "max_current = 5.0"))
+    code, _, err = omnibench(capsys, "sweep", "--dry-run", "--robot", str(weak), "--procedure",
+                             str(PROC / "small_sweep.toml"))
+    assert code == 2 and "max_current 5 A" in err and len(err.strip().splitlines()) == 1
+
+
+def test_answers_file_supplies_the_tape(capsys, tmp_path):
+    answers = tmp_path / "answers.toml"
+    answers.write_text('actions = "done"\n[distance]\n0 = "40 cm"\n1 = 0.41\n2 = "0.8 m"\n3 = "81 cm"\n')
+    code, out, err = omnibench(capsys, "forward", "--port", "sim://?seed=2", "--procedure",
+                               str(PROC / "small_forward.toml"), "--answers", str(answers),
+                               "--out", str(tmp_path), "--json")
+    assert code == 0, err
+    run = read_run(json.loads(out)["run"])
+    assert list(run.steps["measured_distance"]) == pytest.approx([0.40, 0.41, 0.80, 0.81])
+    # the simulated operator still flips/places the robot; the tape readings came from the file
+    assert run.metadata["operator"] == "simulated-operator"
+    answers.write_text('[distance]\n0 = "40 cm"\n')
+    code, _, err = omnibench(capsys, "forward", "--port", "sim://", "--procedure", str(PROC / "small_forward.toml"),
+                             "--answers", str(answers), "--out", str(tmp_path / "x"))
+    assert code == 2 and "no answer for step 1" in err
+    assert not (tmp_path / "x").exists()
