@@ -1,0 +1,151 @@
+"""Replay logged runs through the model and compare with what was measured.
+
+`replay(robot, obs, run, step)` simulates one logged step (or a whole step-response run) with the
+duties the board logged (zero-order hold between samples), in the world of its procedure
+(upside down for sweeps and step responses, on the ground with the payload otherwise), and
+returns measured and predicted signals at the sample times.
+
+`predict_runs(robot, obs)` gives, per run, the NRMSE of every signal that was measured:
+
+- wheel_speed: speed from successive encoder readings, (phi_k+1 - phi_k) / (t_k+1 - t_k), rad/s
+  (the model's angle goes through the same difference, so quantisation is the only extra noise);
+- position: wheel angle since the start of the step, rad;
+- current: motor currents, A (where logged); battery_current: I_batt, A (where logged);
+- steady_speed (sweeps): the steady wheel speeds of the sweep table; energy (energy runs), J.
+
+NRMSE = RMS(measured - predicted) / RMS(measured), pooled over wheels and steps (0.05 = 5 %).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from omnibench.analysis.observations import Observations
+from omnibench.analysis.predictor import commands_from_trace
+from omnibench.model.scenario import Scenario
+from omnibench.model.simulator import simulate
+
+PHYSICS_DT = 1e-3
+
+
+def nrmse(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """RMS(measured - predicted) / RMS(measured) over finite pairs (NaN if none)."""
+    m = np.asarray(measured, dtype=float).ravel()
+    p = np.asarray(predicted, dtype=float).ravel()
+    ok = np.isfinite(m) & np.isfinite(p)
+    if not ok.any():
+        return float("nan")
+    den = float(np.sqrt(np.mean(m[ok] ** 2)))
+    return float(np.sqrt(np.mean((m[ok] - p[ok]) ** 2))) / den if den > 0 else float("nan")
+
+
+def _scenario(obs: Observations, proc: str, run: str, step: int) -> Scenario:
+    if proc in ("sweep", "step_response"):
+        if proc == "sweep" and len(obs.sweep):
+            rows = obs.sweep[(obs.sweep["run"] == run) & (obs.sweep["step"] == step)]
+            if len(rows) == 4:
+                return Scenario(mode="upside_down", wheel_mass=tuple(rows.sort_values("wheel")["wheel_mass"]))
+        return Scenario(mode="upside_down")
+    table = obs.table(proc)
+    rows = table[(table["run"] == run) & (table["step"] == step)]
+    payload = float(rows["payload"].iloc[0]) if len(rows) and math.isfinite(rows["payload"].iloc[0]) else 0.0
+    return Scenario(mode="ground", payload=payload)
+
+
+def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
+    """Simulate the trace's logged duties; measured and predicted signals at the sample times.
+
+    Columns: t, phi{j}_meas / phi{j}_pred (rad since the first sample), w{j}_meas / w{j}_pred
+    (rad/s, successive-reading differences, at the interval midpoints; last row NaN),
+    i{j}_meas / i{j}_pred (A), I_batt_meas / I_batt_pred (A), E_pred (J since the first sample)."""
+    tr = trace.sort_values("t").reset_index(drop=True)
+    t = tr["t"].to_numpy(dtype=float)
+    t0 = t[0]
+    ts = t - t0
+    t_cmd, U = commands_from_trace(tr.assign(t=ts))
+    sim = simulate(robot, scenario, t_cmd, U, float(ts[-1]) + 2 * PHYSICS_DT, dt=PHYSICS_DT)
+    st = sim["t"].to_numpy()
+    out = pd.DataFrame({"t": t})
+    dts = np.diff(ts)
+    for j in range(1, 5):
+        pm = tr[f"phi{j}"].to_numpy(dtype=float)
+        pm = pm - pm[0]
+        pp = np.interp(ts, st, sim[f"phi{j}"].to_numpy())
+        pp = pp - pp[0]
+        out[f"phi{j}_meas"], out[f"phi{j}_pred"] = pm, pp
+        wm = np.append(np.diff(pm) / dts, np.nan)
+        wp = np.append(np.diff(pp) / dts, np.nan)
+        out[f"w{j}_meas"], out[f"w{j}_pred"] = wm, wp
+        out[f"i{j}_meas"] = tr[f"i{j}"].to_numpy(dtype=float)
+        out[f"i{j}_pred"] = np.interp(ts, st, sim[f"i{j}"].to_numpy())
+    out["I_batt_meas"] = tr["I_batt"].to_numpy(dtype=float)
+    out["I_batt_pred"] = np.interp(ts, st, sim["I_batt"].to_numpy())
+    out["V_batt_meas"] = tr["V_batt"].to_numpy(dtype=float)
+    E = np.interp(ts, st, sim["E_batt"].to_numpy())
+    out["E_pred"] = E - E[0]
+    return out
+
+
+@dataclass
+class RunPrediction:
+    """One run's comparison: NRMSE per signal and the replayed traces (for plots)."""
+
+    run: str
+    procedure: str
+    nrmse: dict[str, float]
+    traces: dict[int, pd.DataFrame] = field(default_factory=dict)
+    entries: pd.DataFrame | None = None
+
+
+def _trace_groups(obs: Observations, run: str, proc: str) -> dict[int, pd.DataFrame]:
+    keys = sorted(k for k in obs.traces if k[0] == run)
+    if proc == "step_response" and keys:
+        return {-1: pd.concat([obs.traces[k] for k in keys], ignore_index=True).sort_values("t").reset_index(drop=True)}
+    return {k[1]: obs.traces[k] for k in keys if len(obs.traces[k]) >= 3}
+
+
+def predict_runs(robot: Any, obs: Observations) -> list[RunPrediction]:
+    """Every run of `obs` replayed through `robot` (see the module docstring)."""
+    from omnibench.analysis.fitting import predict_observations
+
+    out = []
+    for run in obs.run_ids:
+        proc = next(p for p in ("sweep", "forward", "lateral", "energy", "step_response")
+                    if (obs.table(p)["run"] == run).any())
+        sub = obs.select(runs=[run])
+        rp = RunPrediction(run=run, procedure=proc, nrmse={})
+        pooled: dict[str, tuple[list, list]] = {}
+
+        def add(name: str, m: np.ndarray, p: np.ndarray) -> None:
+            a, b = pooled.setdefault(name, ([], []))
+            a.append(np.asarray(m, dtype=float).ravel())
+            b.append(np.asarray(p, dtype=float).ravel())
+
+        for step, tr in _trace_groups(sub, run, proc).items():
+            rep = replay(robot, tr, _scenario(sub, proc, run, step))
+            rp.traces[step] = rep
+            add("wheel_speed", rep[[f"w{j}_meas" for j in range(1, 5)]].to_numpy(),
+                rep[[f"w{j}_pred" for j in range(1, 5)]].to_numpy())
+            add("position", rep[[f"phi{j}_meas" for j in range(1, 5)]].to_numpy(),
+                rep[[f"phi{j}_pred" for j in range(1, 5)]].to_numpy())
+            im = rep[[f"i{j}_meas" for j in range(1, 5)]].to_numpy()
+            if np.isfinite(im).any() and np.nanmax(np.abs(im)) > 0:
+                add("current", im, rep[[f"i{j}_pred" for j in range(1, 5)]].to_numpy())
+            Ib = rep["I_batt_meas"].to_numpy()
+            if np.isfinite(Ib).any() and np.nanmax(np.abs(Ib)) > 0:
+                add("battery_current", Ib, rep["I_batt_pred"].to_numpy())
+        if proc in ("sweep", "energy", "forward", "lateral"):
+            ent = predict_observations(robot, sub, [proc])
+            rp.entries = ent
+            names = {"omega": "steady_speed", "current": "steady_current", "energy": "energy", "w": "drive_speed",
+                     "forward": "displacement", "left": "displacement"}
+            for sig, g in ent.groupby("signal"):
+                add(names.get(str(sig), str(sig)), g["measured"].to_numpy(), g["predicted"].to_numpy())
+        rp.nrmse = {k: nrmse(np.concatenate(a), np.concatenate(b)) for k, (a, b) in pooled.items()}
+        out.append(rp)
+    return out

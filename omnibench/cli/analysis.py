@@ -1,0 +1,211 @@
+"""`omnibench fit`, `omnibench validate-energy`, `omnibench predict`: read run directories,
+never the port. See docs/fit.md."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import click
+
+from omnibench.errors import UserError
+
+
+def _robot(path: Path | None):
+    from omnibench.analysis.model_file import load_model
+    from omnibench.model import default_robot
+
+    if path is None:
+        return default_robot(), {}
+    return load_model(path)
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "item"):
+        return _jsonable(obj.item())
+    return obj
+
+
+def _echo_json(obj: Any) -> None:
+    click.echo(json.dumps(_jsonable(obj), indent=2, allow_nan=False))
+
+
+def _free(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise UserError("--free: give parameter names separated by commas, e.g. a,b,c")
+    return names
+
+
+@click.command("fit")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--robot", "robot_file", type=click.Path(path_type=Path), default=None,
+              help="Robot or model file to start from (default: the shipped Omnibot).")
+@click.option("--out", "out", type=click.Path(path_type=Path), default=Path("model.toml"), show_default=True,
+              help="Model file to write: the robot file with the fitted values and a [fit] table.")
+@click.option("--free", "free", default=None, metavar="P1,P2,...",
+              help="Parameters to fit (paper symbols, or <effect>.<param>). Default: what the runs measure.")
+@click.option("--per-wheel/--no-per-wheel", default=True, show_default=True,
+              help="Also fit the upside-down sweep of each wheel on its own (a, b, c per wheel).")
+@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+              help="Folder for the figures (sweep with fitted curves, residuals).")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None, per_wheel: bool,
+                plots: Path | None, as_json: bool) -> None:
+    """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
+    correlations and an identifiability verdict per parameter; write the model file."""
+    from omnibench.analysis.fitting import fit, fit_per_wheel
+    from omnibench.analysis.model_file import write_model
+    from omnibench.analysis.observations import Observations
+
+    robot, _ = _robot(robot_file)
+    obs = Observations.from_runs(runs, robot)
+    if not any(len(obs.table(p)) for p in ("sweep", "forward", "lateral")):
+        raise UserError("none of the runs is a sweep, forward or lateral run: nothing to fit "
+                        f"({obs.summary()})")
+    if not as_json:
+        click.echo(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
+        click.echo("Fitting through the simulator (weighted least squares)...")
+    result = fit(robot, obs, _free(free))
+    wheels = {}
+    if per_wheel and len(obs.sweep) and obs.sweep["wheel"].nunique() > 1:
+        wheels = fit_per_wheel(result.robot, obs, [p for p in ("a", "b", "c")])
+    paths = [obs.runs[r]["path"] or r for r in result.runs_used]
+    model_path = write_model(out, result, [str(p) for p in paths], per_wheel=wheels or None)
+    figures = []
+    if plots is not None:
+        from omnibench.analysis import plots as pl
+
+        if len(obs.sweep):
+            figures.append(str(pl.plot_sweep_fit(result.robot, obs, result.residuals, plots)))
+        figures.append(str(pl.plot_residuals(result.residuals, plots)))
+    if as_json:
+        data = result.to_json()
+        data["per_wheel"] = {str(j): r.to_json()["parameters"] for j, r in wheels.items()}
+        data["model_file"] = str(model_path)
+        data["plots"] = figures
+        _echo_json(data)
+        return
+    click.echo(result.table())
+    if len(result.corr) > 1:
+        click.echo("correlation matrix:")
+        names = list(result.corr.columns)
+        click.echo("        " + " ".join(f"{n:>8}" for n in names))
+        for a in names:
+            click.echo(f"{a:>8}" + " ".join(f"{result.corr.loc[a, b]:>8.3f}" for b in names))
+    for c in result.confounded:
+        click.echo(f"not separable: {', '.join(c['with'])} and the fixed {c['fixed']} "
+                   f"(only {c['combination']} is seen)")
+    if wheels:
+        click.echo("per-wheel upside-down sweep fits:")
+        for j, r in wheels.items():
+            vals = []
+            for p in r.free:
+                v = r.identifiable[p]
+                if v.ok and math.isfinite(r.se[p]):
+                    vals.append(f"{p} = {r.values[p]:.4g} +/- {r.se[p]:.2g}" + (" (conditional)" if v.status == "conditional" else ""))
+                else:
+                    vals.append(f"{p}: not identifiable")
+            click.echo(f"  wheel {j}: " + ", ".join(vals) + f"; chi2/dof {r.s2:.3g}")
+        reasons = {p: r.identifiable[p].reason for r in wheels.values() for p in r.free
+                   if not r.identifiable[p].ok}
+        for p, why in reasons.items():
+            click.echo(f"  {p}: {why}")
+    for n in result.notes:
+        click.echo(f"note: {n}")
+    click.echo(f"model file written: {model_path}")
+    for f in figures:
+        click.echo(f"figure: {f}")
+
+
+@click.command("validate-energy")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--model", "model", type=click.Path(path_type=Path), required=True,
+              help="Model file from `omnibench fit` (or a robot file).")
+@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+              help="Folder for the current-trace figure.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool) -> None:
+    """Replay each energy run's duties through the model and compare predicted with measured
+    battery energy (paper IV)."""
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.validate import validate_energy
+
+    robot, _ = _robot(model)
+    obs = Observations.from_runs(runs, robot)
+    val = validate_energy(robot, obs)
+    fig = None
+    if plots is not None:
+        from omnibench.analysis.plots import plot_energy
+
+        fig = plot_energy(val, plots)
+    if as_json:
+        data = val.to_json()
+        data["model"] = str(model)
+        data["plots"] = [str(fig)] if fig else []
+        _echo_json(data)
+        return
+    click.echo(f"{'run':<40} {'step':>4} {'trajectory':<14} {'measured J':>11} {'model J':>11} {'error %':>8}")
+    for _, r in val.table.iterrows():
+        click.echo(f"{str(r['run']):<40} {int(r['step']):>4} {str(r['trajectory']):<14} {r['measured_J']:>11.2f} "
+                   f"{r['predicted_J']:>11.2f} {r['error_pct']:>+8.2f}")
+    click.echo(f"mean absolute error {val.mean_abs_error_pct:.2f} %, largest {val.max_abs_error_pct:.2f} %")
+    if fig:
+        click.echo(f"figure: {fig}")
+
+
+@click.command("predict")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("--model", "model", type=click.Path(path_type=Path), required=True,
+              help="Model file from `omnibench fit` (or a robot file).")
+@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+              help="Folder for the measured-vs-model figures.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool) -> None:
+    """Replay a logged RUN (any procedure, including imported step responses) through the model:
+    NRMSE of wheel speeds, positions and currents where measured."""
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.predict import predict_runs
+
+    robot, _ = _robot(model)
+    obs = Observations.from_runs(runs, robot)
+    preds = predict_runs(robot, obs)
+    if not preds:
+        raise UserError("the runs hold nothing to predict")
+    figs = []
+    if plots is not None:
+        from omnibench.analysis.plots import plot_prediction
+
+        for p in preds:
+            f = plot_prediction(p, plots)
+            if f:
+                figs.append(str(f))
+    pooled: dict[str, list[float]] = {}
+    for p in preds:
+        for k, v in p.nrmse.items():
+            pooled.setdefault(k, []).append(v)
+    top = {k: (v[0] if len(v) == 1 else float(math.sqrt(sum(x * x for x in v) / len(v)))) for k, v in pooled.items()}
+    if as_json:
+        _echo_json({"model": str(model), "nrmse": top,
+                    "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse} for p in preds],
+                    "plots": figs})
+        return
+    for p in preds:
+        click.echo(f"{p.run} ({p.procedure}):")
+        for k, v in p.nrmse.items():
+            click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
+    for f in figs:
+        click.echo(f"figure: {f}")
+
+
+commands = {"fit": fit_command, "validate-energy": validate_command, "predict": predict_command}
