@@ -42,18 +42,34 @@ class LinkBoard:
         with Board.open(url, timeout=timeout) as board:
             yield cls(board)
 
+    def _drain(self) -> None:
+        """Take the telemetry already waiting on the port before sending a command.
+
+        Why: the client waits for a command's ACK for a limited span of *board* time; if the
+        host has fallen behind (a slow disk flush, a busy machine), old telemetry still queued
+        on the port would use up that span before the ACK behind it is read. The drained
+        samples are kept and handed out by `read` in order: nothing is lost.
+        """
+        self._buf.extend(self.board.read_samples())
+
     def configure(self, *, telemetry_hz: float, watchdog_s: float) -> None:
+        self._drain()
         self.board.clear_faults()
         self.board.configure(telemetry_hz=int(round(telemetry_hz)), watchdog_s=watchdog_s)
 
     def reset_encoders(self) -> None:
+        self._drain()
         self.board.reset_encoders()
 
     def set_duties(self, duties: Sequence[float]) -> None:
+        self._drain()
         self.board.set_duties(duties)
 
     def stop(self) -> None:
-        self.board.stop()
+        try:
+            self._drain()
+        finally:
+            self.board.stop()
 
     def keepalive(self) -> None:
         """Nothing to do: the link client PINGs on its own."""
@@ -84,9 +100,11 @@ class LinkBoard:
 
     def sim_set_world(self, *, mode: str | None = None, payload: float | None = None,
                       wheel_mass: Sequence[float] | None = None) -> None:
+        self._drain()
         self.board.sim_set_world(mode=mode, payload=payload, wheel_mass=wheel_mass)
 
     def sim_truth(self) -> tuple[float, float, float]:
+        self._drain()
         p = self.board.sim_truth()
         return (p.x, p.y, p.psi)
 
