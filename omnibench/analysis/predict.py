@@ -62,7 +62,8 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
 
     Columns: t, phi{j}_meas / phi{j}_pred (rad since the first sample), w{j}_meas / w{j}_pred
     (rad/s, successive-reading differences, at the interval midpoints; last row NaN),
-    i{j}_meas / i{j}_pred (A), I_batt_meas / I_batt_pred (A), E_pred (J since the first sample)."""
+    i{j}_meas / i{j}_pred (A), I_batt_meas / I_batt_pred (A), V_batt_meas / V_batt_pred (V),
+    E_pred (J since the first sample, the model's exact integral)."""
     tr = trace.sort_values("t").reset_index(drop=True)
     t = tr["t"].to_numpy(dtype=float)
     t0 = t[0]
@@ -86,6 +87,7 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
     out["I_batt_meas"] = tr["I_batt"].to_numpy(dtype=float)
     out["I_batt_pred"] = np.interp(ts, st, sim["I_batt"].to_numpy())
     out["V_batt_meas"] = tr["V_batt"].to_numpy(dtype=float)
+    out["V_batt_pred"] = np.interp(ts, st, sim["V_batt"].to_numpy())
     E = np.interp(ts, st, sim["E_batt"].to_numpy())
     out["E_pred"] = E - E[0]
     return out

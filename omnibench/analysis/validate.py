@@ -2,8 +2,9 @@
 
 For every energy run step, the duties the board logged are replayed through the model on the
 ground (zero-order hold between samples, the step's payload), the model's battery current
-I_batt(t) = sum(u_i i_i) + I_0 and energy E = integral of V_batt I_batt dt are taken over the
-same interval as the measurement (first to last sample of the step), and compared:
+I_batt(t) = sum(u_i i_i) + I_0 and V_batt(t) are read at the step's sample times and the
+predicted energy is the same trapezoid of V_batt I_batt over those samples as the measured one
+(so the sampling of current spikes at duty changes affects both alike), and compared:
 
     error % = 100 (predicted_J - measured_J) / measured_J
 
@@ -64,15 +65,16 @@ def validate_energy(robot: Any, obs: Observations) -> EnergyValidation:
         tr = obs.traces.get(key)
         row = {"run": r["run"], "step": int(r["step"]), "trajectory": r["trajectory"],
                "duration_s": float(r["duration"]), "measured_J": float(r["measured_J"]),
-               "predicted_J": float("nan"), "error_pct": float("nan"), "current_nrmse": float("nan")}
+               "predicted_J": float("nan"), "error_pct": float("nan"), "current_nrmse": float("nan"),
+               "predicted_exact_J": float("nan")}
         if tr is not None and len(tr) >= 3:
             payload = float(r["payload"]) if math.isfinite(r["payload"]) else 0.0
             rep = replay(robot, tr, Scenario(mode="ground", payload=payload))
             traces[key] = rep
             # the model's energy by the same trapezoid over the same samples as the measurement
-            V = rep["V_batt_meas"].to_numpy()
-            V = np.where(np.isfinite(V), V, robot.V_batt)
-            E_pred = float(rep["E_pred"].iloc[-1])
+            t = rep["t"].to_numpy()
+            E_pred = float(np.trapezoid(rep["V_batt_pred"].to_numpy() * rep["I_batt_pred"].to_numpy(), t))
+            row["predicted_exact_J"] = float(rep["E_pred"].iloc[-1])
             row["predicted_J"] = E_pred
             if math.isfinite(row["measured_J"]) and row["measured_J"] != 0:
                 row["error_pct"] = 100.0 * (E_pred - row["measured_J"]) / row["measured_J"]

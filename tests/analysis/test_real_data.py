@@ -1,0 +1,75 @@
+"""The real 2019 data: the jacked sweep (per-wheel a, b) and the square-wave step responses."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from omnibench.analysis.fitting import fit, fit_per_wheel
+from omnibench.analysis.observations import Observations
+from omnibench.analysis.predict import predict_runs
+
+
+@pytest.fixture(scope="module")
+def jacked(real_runs, robot):
+    return Observations.from_runs([real_runs["results_jacked"]], robot)
+
+
+def test_jacked_sweep_becomes_108_steady_states(jacked, robot):
+    sw = jacked.sweep
+    assert len(sw) == 4 * 27
+    assert (sw["omega"] >= 0).all() and (sw["u"] > 0).all()
+    assert not jacked.has_current
+    assert np.allclose(sw["F_N"], robot.wheel_mass[0] * 9.80665)  # wheel loads were not recorded
+    # the highest amplitude (112/127) turns every wheel at 12.6-13.2 rad/s
+    top = sw[np.isclose(sw["u"], 112 / 127)]
+    assert top["omega"].between(12.5, 13.3).all()
+
+
+def test_per_wheel_fit_reports_a_and_b_with_uncertainties(jacked, robot):
+    fits = fit_per_wheel(robot, jacked)
+    assert sorted(fits) == [1, 2, 3, 4]
+    bs = []
+    for j, res in fits.items():
+        for p in ("a", "b"):
+            assert res.identifiable[p].ok
+            assert math.isfinite(res.se[p]) and 0 < res.se[p] < 0.1 * 0.6
+        assert 0.1 < res.values["b"] < 1.0  # N m at the wheel: a 24 V gear motor's Coulomb friction
+        assert -0.01 < res.values["a"] < 0.05
+        # no load variation on the blocks: c is not identifiable, and the fit says so
+        assert res.identifiable["c"].status == "not identifiable"
+        # no current logged: a only given the datasheet back-EMF constant
+        assert res.identifiable["a"].status == "conditional" and "k_e" in res.identifiable["a"].reason
+        bs.append(res.values["b"])
+    # the wheels differ: wheel 1's Coulomb friction is well above wheel 4's
+    assert fits[1].values["b"] - fits[4].values["b"] > 3 * math.hypot(fits[1].se["b"], fits[4].se["b"])
+
+
+def test_real_sweep_residual_is_reported_not_hidden(jacked, robot):
+    res = fit(robot, jacked, ["a", "b"])
+    # the pooled model leaves structure: chi2/dof well above 1 and a note saying so
+    assert res.s2 > 2
+    assert any("misses something" in n for n in res.notes)
+    # the slow steady states (deadband/stiction) are kept in the residual table, marked unused
+    slow = res.residuals[~res.residuals["used"]]
+    assert len(slow) >= 10 and (slow["speed"] < 0.3).all()
+    # ... and the model overestimates the speed there: the structured low-speed residual
+    assert (slow["residual"] < 0).mean() > 0.7
+
+
+def test_predict_reports_nrmse_of_the_square_wave_step_responses(real_runs, robot):
+    obs = Observations.from_runs([real_runs["square_fast"], real_runs["square_small"]], robot)
+    assert len(obs.step_response) == 15 + 7
+    preds = {p.run: p for p in predict_runs(robot, obs)}
+    assert len(preds) == 2
+    for p in preds.values():
+        assert p.procedure == "step_response"
+        assert set(p.nrmse) >= {"wheel_speed", "position"}
+        assert 0.02 < p.nrmse["wheel_speed"] < 1.0
+    # square_fast (+-100/127): the wheels reverse between about +-11 rad/s, in the model and in the log
+    fast = next(p for p in preds.values() if len(next(iter(p.traces.values()))) < 500)
+    rep = next(iter(fast.traces.values()))
+    for col in ("w1_meas", "w1_pred"):
+        assert np.nanmax(rep[col]) > 9 and np.nanmin(rep[col]) < -9
