@@ -1,0 +1,35 @@
+"""`omnibench campaign`: all four procedures, then fit, validate-energy and diagnose, one report."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+
+@click.command("campaign")
+@click.option("--port", metavar="URL", help="Serial device, or sim://... for the simulated robot.")
+@click.option("--out", type=click.Path(path_type=Path), default=Path("campaign"), show_default=True,
+              help="Folder for the runs, the analysis outputs, the plots and report.md.")
+@click.option("--robot", "robot_file", type=click.Path(path_type=Path), metavar="FILE",
+              help="Robot file (TOML). Default: the real Omnibot's numbers.")
+@click.option("--procedures", "procedures_dir", type=click.Path(path_type=Path, file_okay=False), metavar="DIR",
+              help="Folder holding the four procedure files (<procedure>.toml). Default: the shipped ones.")
+@click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
+def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None, as_json: bool) -> None:
+    """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
+    validate the energy and diagnose; write OUT/report.md with plots.
+
+    On the simulated robot:  omnibench campaign --port sim:// --out campaign
+    """
+    from omnibench.bench.campaign import run_campaign
+
+    def echo(line: str) -> None:
+        click.echo(line, err=as_json)
+
+    res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
+                       progress=not as_json and sys.stderr.isatty())
+    if as_json:
+        click.echo(json.dumps(res, indent=2, default=str))
