@@ -64,9 +64,10 @@ class BenchBoard(Protocol):
 
 
 @contextlib.contextmanager
-def open_bench_board(url: str, timeout: float = 2.0) -> Iterator[BenchBoard]:
-    """Open the board at `url` (serial device, `sim://...`) as a BenchBoard; motors stopped on exit."""
+def open_bench_board(url: str, timeout: float = 2.0, ammeter: str | None = None) -> Iterator[BenchBoard]:
+    """Open the board at `url` (serial device, `sim://...`) as a BenchBoard, with an optional
+    SCPI ammeter on its own serial URL for the battery current; motors stopped on exit."""
     from omnibench.bench.link_adapter import LinkBoard
 
-    with LinkBoard.open(url, timeout=timeout) as board:
+    with LinkBoard.open(url, timeout=timeout, ammeter=ammeter) as board:
         yield board

@@ -35,12 +35,29 @@ class LinkBoard:
 
     @classmethod
     @contextlib.contextmanager
-    def open(cls, url: str, timeout: float = 2.0) -> Iterator["LinkBoard"]:
-        """Open `url` with the link client; leaving the block stops the motors and closes the port."""
+    def open(cls, url: str, timeout: float = 2.0, ammeter: str | None = None,
+             ammeter_period: float = 0.05) -> Iterator["LinkBoard"]:
+        """Open `url` with the link client (and the SCPI ammeter at `ammeter`, read every
+        `ammeter_period` s of board time); leaving the block stops the motors and closes both."""
         from omnibench.link.board import Board
 
         with Board.open(url, timeout=timeout) as board:
-            yield cls(board)
+            lb = cls(board)
+            meter = None
+            if ammeter:
+                from omnibench.link.ammeter import open_ammeter
+
+                meter = open_ammeter(ammeter)
+                board.attach_ammeter(meter, ammeter_period)
+                lb.ammeter_attached = True
+                lb.has_battery_current = True
+                lb.hello["ammeter"] = {"url": ammeter, "idn": meter.idn, "period_s": ammeter_period}
+            try:
+                yield lb
+            finally:
+                if meter is not None:
+                    board.attach_ammeter(None)
+                    meter.close()
 
     def _drain(self) -> None:
         """Take the telemetry already waiting on the port before sending a command.
@@ -80,10 +97,12 @@ class LinkBoard:
             for s in self.board.samples(0.0):
                 self._buf.append(s)
         s = self._buf.popleft()
-        ib = s.battery_current
-        am = getattr(s, "ammeter_current", math.nan)
-        if am is not None and not math.isnan(am):
-            ib = am  # an external ammeter, when attached, is the battery current
+        ib: float | None = s.battery_current
+        if self.ammeter_attached:
+            # the external ammeter is the battery current; it reads every ammeter period, so
+            # samples between its readings have no battery current (left empty, never mixed)
+            am = getattr(s, "ammeter_current", math.nan)
+            ib = None if am is None or math.isnan(am) else float(am)
         elif not self.has_battery_current:
             ib = None
         return Telemetry(
@@ -107,11 +126,3 @@ class LinkBoard:
         self._drain()
         p = self.board.sim_truth()
         return (p.x, p.y, p.psi)
-
-    def attach_ammeter(self, url: str, period_s: float = 0.05) -> None:
-        """Log the battery current from a separate ammeter on its own serial URL."""
-        from omnibench.link import ammeter as am  # type: ignore[attr-defined]
-
-        self.board.attach_ammeter(am.open_ammeter(url), period_s)  # pragma: no cover - depends on issue 3
-        self.ammeter_attached = True
-        self.has_battery_current = True

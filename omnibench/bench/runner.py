@@ -385,15 +385,18 @@ class Runner:
         t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
         self._stop()
         _, t_end = self._run_for(step, data, step.settle, None)
-        t = np.asarray(data.t)
-        has_current = all(v is not None for v in data.I) and all(v is not None for v in data.V)
+        t = np.asarray(data.t, dtype=float)
+        V = np.array([np.nan if v is None else v for v in data.V], dtype=float)
+        I = np.array([np.nan if v is None else v for v in data.I], dtype=float)
+        ok = np.isfinite(V) & np.isfinite(I)
+        # an external ammeter reads less often than the telemetry: integrate over its readings
+        has_current = bool(ok.sum() >= 2)
         rec: dict[str, Any] = {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
-                               "has_current": bool(has_current)}
-        if has_current and len(t) > 1:
-            V = np.asarray(data.V, dtype=float)
-            I = np.asarray(data.I, dtype=float)
-            rec.update(energy=float(np.trapezoid(V * I, t)), charge=float(np.trapezoid(I, t)),
-                       I_batt_mean=float(I.mean()), I_batt_peak=float(np.abs(I).max()))
+                               "has_current": has_current, "current_samples": int(ok.sum())}
+        if has_current:
+            tt, P, II = t[ok], V[ok] * I[ok], I[ok]
+            rec.update(energy=float(np.trapezoid(P, tt)), charge=float(np.trapezoid(II, tt)),
+                       I_batt_mean=float(II.mean()), I_batt_peak=float(np.abs(II).max()))
         else:
             rec.update(energy=None, charge=None, I_batt_mean=None, I_batt_peak=None)
         return rec

@@ -133,6 +133,7 @@ def run_command(
     progress: bool = True,
     measurement_noise: float | None = None,
     timeout: float = 2.0,
+    ammeter: str | None = None,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
@@ -175,7 +176,7 @@ def run_command(
     # 2. the board
     from omnibench.bench.board import open_bench_board
 
-    with open_bench_board(port, timeout=timeout) as board:
+    with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
                              measurement_noise=measurement_noise)

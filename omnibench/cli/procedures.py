@@ -49,9 +49,11 @@ def _make(name: str) -> click.Command:
     @click.option("--measurement-noise", type=float, default=None, metavar="M",
                   help="Simulation only: the simulated operator's tape noise, m (default from the procedure file).")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+    @click.option("--ammeter", metavar="URL", default=None, hidden=name != "energy",
+                  help="SCPI ammeter on its own serial URL for the battery current (default: the board's sensor).")
     def cmd(port: str | None, procedure_file: Path | None, robot_file: Path | None, out: Path,
             dry_run: bool, resume: Path | None, answers: Path | None, measurement_noise: float | None,
-            as_json: bool) -> None:
+            as_json: bool, ammeter: str | None) -> None:
         from omnibench.bench.session import run_command
 
         def echo(line: str) -> None:
@@ -61,6 +63,7 @@ def _make(name: str) -> click.Command:
             procedure, port=port, procedure_file=procedure_file, robot_file=robot_file, out=out,
             dry_run=dry_run, resume=resume, answers=answers, echo=echo,
             progress=not as_json and sys.stderr.isatty(), measurement_noise=measurement_noise,
+            ammeter=ammeter,
         )
         if as_json:
             click.echo(json.dumps(result, indent=2, default=str))

@@ -213,3 +213,19 @@ def test_answers_file_supplies_the_tape(capsys, tmp_path):
                              "--answers", str(answers), "--out", str(tmp_path / "x"))
     assert code == 2 and "no answer for step 1" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_energy_with_external_ammeter_matches_board_sensor(capsys, tmp_path):
+    energies = {}
+    for label, args in (("board", ["--port", "sim://?seed=2"]),
+                        ("ammeter", ["--port", "sim://?name=bench-e2e&seed=2", "--ammeter", "sim://ammeter?board=bench-e2e"])):
+        code, out, err = omnibench(capsys, "energy", *args, "--procedure", str(PROC / "small_energy.toml"),
+                                   "--out", str(tmp_path / label), "--json")
+        assert code == 0, err
+        run = read_run(json.loads(out)["run"])
+        energies[label] = run.steps["energy"].to_numpy()
+        if label == "ammeter":
+            assert run.metadata["board"]["ammeter"]["url"].startswith("sim://ammeter")
+            # readings only every 50 ms of board time: fewer current samples than telemetry rows
+            assert 0 < run.samples["I_batt"].notna().sum() < len(run.samples)
+    np.testing.assert_allclose(energies["ammeter"], energies["board"], rtol=0.05)
