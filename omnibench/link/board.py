@@ -176,8 +176,9 @@ class Board:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
+        # A link already reported lost has nothing left to stop through: do not raise twice.
         try:
-            self.stop(raise_errors=exc_type is None)
+            self.stop(raise_errors=exc_type is None and self._lost_error is None)
         finally:
             self.close()
 
@@ -307,6 +308,8 @@ class Board:
             raise BoardError("telemetry is off: call configure(telemetry_hz=...) before reading samples")
         t_end = self._board_time + float(duration)
         probe_at: float | None = None
+        last_tel = self.stats.telemetry
+        last_tel_wall = time.monotonic()
         while True:
             with self._io:
                 while self._queue:
@@ -314,16 +317,21 @@ class Board:
                     yield s
                     if s.t >= t_end:
                         return
-                got = self._pump(wait=True)
-                if got:
-                    probe_at = None
+                self._pump(wait=True)
+                now = time.monotonic()
+                if self.stats.telemetry != last_tel:
+                    last_tel, last_tel_wall, probe_at = self.stats.telemetry, now, None
                     continue
-                idle = time.monotonic() - self._last_rx_wall
-                if idle > STALL_S and probe_at is None:
-                    probe_at = time.monotonic()
-                    self._send("HELLO_REQ")          # a reset board answers with a new boot id
-                elif probe_at is not None and time.monotonic() - probe_at > PROBE_S:
-                    raise self._lost(f"no data from the board for {idle:.1f} s")
+                # No telemetry (ACKs of heartbeat PINGs do not count): probe once with
+                # HELLO_REQ (a board that reset answers with a new boot id), then give up.
+                if probe_at is None and now - last_tel_wall > STALL_S:
+                    probe_at = now
+                    self._send("HELLO_REQ")
+                elif probe_at is not None and now - probe_at > PROBE_S:
+                    answered = now - self._last_rx_wall < PROBE_S
+                    raise self._lost(
+                        f"no telemetry for {now - last_tel_wall:.1f} s"
+                        + (" although the board answers (was it reconfigured by another program?)" if answered else ""))
 
     def wait(self, duration: float) -> list[Sample]:
         """All samples over the next `duration` s of board time (see samples())."""
@@ -383,7 +391,11 @@ class Board:
                     self.stats.retries += 1
                 sent.append(self._send(name, values))
                 wall_end = time.monotonic() + ACK_TIMEOUT_S
-                board_end = self._board_time + ACK_TIMEOUT_BOARD_S
+                # On a fast simulator the wall clock says little: with telemetry flowing,
+                # also give up after some board time (the known board time may be one
+                # telemetry period old, hence the allowance).
+                board_end = (self._board_time + ACK_TIMEOUT_BOARD_S + 1.0 / self._telemetry_hz
+                             if self._telemetry_hz > 0 else math.inf)
                 while True:
                     ack = next((self._acks.pop(s) for s in sent if s in self._acks), None)
                     if ack is not None and (reply is None or reply in self._replies):

@@ -90,8 +90,8 @@ class Deframer:
     """Splits a byte stream into frame bodies; counts and drops everything invalid.
 
     Feed it bytes as they arrive (any chunking); `feed` returns the bodies of the complete
-    valid frames. Chunks longer than `max_frame_bytes` (decoded) are dropped without
-    buffering them, so garbage with no delimiter cannot grow memory.
+    valid frames. Of a chunk longer than `max_frame_bytes` (decoded) only the tail is kept,
+    so garbage with no delimiter cannot grow memory.
     """
 
     def __init__(self, crc: Crc, max_frame_bytes: int = 254, frame_sizes: set[int] | None = None) -> None:
@@ -122,7 +122,13 @@ class Deframer:
             self._overflow = False
             start = end + 1
             if overflow:
+                # Too long to be one frame: count it, but its tail may be an intact frame
+                # whose leading delimiter was lost.
                 self.stats.framing_errors += 1
+                body = self._salvage(chunk)
+                if body is not None:
+                    out.append(body)
+                    self.stats.frames += 1
             elif chunk:
                 try:
                     out.append(decode_chunk(chunk, self.crc))
@@ -151,9 +157,8 @@ class Deframer:
         return None
 
     def _append(self, data: bytes) -> None:
-        if self._overflow:
-            return
+        """Buffer bytes of the current chunk; beyond a frame's size keep only the tail."""
         self._buf += data
         if len(self._buf) > self.max_encoded:
-            self._buf.clear()
+            del self._buf[: len(self._buf) - self.max_encoded]
             self._overflow = True

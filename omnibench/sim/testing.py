@@ -1,0 +1,70 @@
+"""For tests and scripts: run `omnibench sim serve` as a subprocess, read its device path and status file, stop it."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+START_TIMEOUT_S = 90.0  # first start may compile the physics kernel
+
+
+@dataclass
+class Served:
+    proc: subprocess.Popen
+    path: str
+    status_file: Path
+    lines: list[str]
+
+    def status(self) -> dict:
+        """The server's status file (its board's duties, faults, last command...)."""
+        for _ in range(50):
+            try:
+                return json.loads(self.status_file.read_text())
+            except (FileNotFoundError, json.JSONDecodeError):
+                time.sleep(0.05)
+        raise AssertionError("status file never appeared")
+
+    def stop(self, sig: int = signal.SIGTERM) -> int:
+        """Signal the server and wait for it (kills it after 10 s); returns its exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+        for f in (self.proc.stdout, self.proc.stderr):
+            if f:
+                f.close()
+        return self.proc.returncode
+
+
+def spawn_server(tmp: Path, *args: str, lines: int = 1) -> Served:
+    """Run `python -m omnibench sim serve ARGS --status-file ...`; wait for its path line(s)."""
+    status = tmp / f"sim-status-{time.monotonic_ns()}.json"
+    proc = subprocess.Popen([sys.executable, "-m", "omnibench", "sim", "serve", "--status-file", str(status), *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ))
+    got: list[str] = []
+    buf = b""
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while len(got) < lines:
+        left = deadline - time.monotonic()
+        if left <= 0 or proc.poll() is not None:
+            proc.kill()
+            err = proc.stderr.read().decode() if proc.stderr else ""
+            raise AssertionError(f"sim serve did not print its path: {err[-500:]}")
+        r, _, _ = select.select([proc.stdout], [], [], min(left, 0.5))
+        if r:
+            chunk = os.read(proc.stdout.fileno(), 4096)
+            buf += chunk
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                got.append(line.decode().strip())
+    return Served(proc, got[0], status, got)

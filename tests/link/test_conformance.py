@@ -1,0 +1,184 @@
+"""One board conformance class, run unchanged on `sim://` and on `omnibench sim serve` (a pty).
+
+Every test talks through the public Board client only; `target.status()` reads the
+simulated board's own state (registry in-process, status file for the server) so a test
+can check what the motors really do.
+"""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import pytest
+
+from omnibench.errors import BoardError, UserError
+from omnibench.link.board import Board
+from omnibench.sim import registry
+
+from omnibench.sim.testing import spawn_server
+
+
+class SimTarget:
+    """The in-process simulator behind `sim://`."""
+
+    kind = "sim"
+
+    def __init__(self) -> None:
+        self.name = f"conf-{uuid.uuid4().hex[:8]}"
+        self.url = f"sim://omnibot?seed=11&name={self.name}"
+
+    def status(self) -> dict:
+        return registry.get(self.name).status()
+
+
+class PtyTarget:
+    """`omnibench sim serve` in another process, on a pseudo-terminal."""
+
+    kind = "pty"
+
+    def __init__(self, served) -> None:
+        self.served = served
+        self.url = served.path
+
+    def status(self) -> dict:
+        import time
+
+        time.sleep(0.1)  # the server writes its status file within a loop tick
+        return self.served.status()
+
+
+@pytest.fixture(scope="module")
+def pty_server(tmp_path_factory):
+    served = spawn_server(tmp_path_factory.mktemp("pty"), "--seed", "11", "--clock", "realtime")
+    yield served
+    served.stop()
+    assert served.status()["motors_stopped"] is True and served.status()["serving"] is False
+
+
+@pytest.fixture(params=["sim", "pty"])
+def target(request):
+    if request.param == "sim":
+        return SimTarget()
+    return PtyTarget(request.getfixturevalue("pty_server"))
+
+
+class TestBoardConformance:
+    """What every board (simulated in-process, served on a pty, real) must do."""
+
+    def test_hello_identity(self, target) -> None:
+        with Board.open(target.url) as b:
+            h = b.hello
+            assert h.protocol_version == 1 and b.version_ok
+            assert h.counts_per_rev == 980
+            assert h.boot_id != 0 and h.is_simulator
+            assert "BATTERY_CURRENT" in h.capabilities
+
+    def test_telemetry_at_configured_rate_on_board_clock(self, target) -> None:
+        with Board.open(target.url) as b:
+            b.configure(telemetry_hz=100)
+            s = b.wait(0.5)
+            assert len(s) >= 50
+            dts = [b2.t - b1.t for b1, b2 in zip(s, s[1:])]
+            assert all(abs(dt - 0.01) < 2e-6 for dt in dts)
+            assert b.stats.lost == 0 and b.stats.crc_errors == 0
+
+    def test_duties_applied_echoed_and_stopped(self, target) -> None:
+        with Board.open(target.url) as b:
+            b.clear_faults()
+            b.sim_set_world(mode="upside_down")
+            b.configure(telemetry_hz=200)
+            b.reset_encoders()
+            u = [0.4, -0.4, 0.2, -0.2]
+            b.set_duties(u)
+            assert not target.status()["motors_stopped"]
+            s = b.wait(0.3)[-1]
+            assert all(abs(a - e) < 1e-4 for a, e in zip(s.duty, u))
+            assert s.encoder[0] > 0 and s.encoder[1] < 0 and s.encoder[2] > 0 and s.encoder[3] < 0
+            assert s.motor_current[0] > 0 and s.motor_current[1] < 0
+            b.stop()
+            after = b.wait(0.05)[-1]
+            assert after.duty == (0.0, 0.0, 0.0, 0.0)
+            assert target.status()["motors_stopped"]
+            b.sim_set_world(mode="ground")
+
+    def test_reset_encoders(self, target) -> None:
+        with Board.open(target.url) as b:
+            b.clear_faults()
+            b.sim_set_world(mode="upside_down")
+            b.configure(telemetry_hz=100)
+            b.set_duties([0.5] * 4)
+            b.wait(0.2)
+            b.stop()
+            b.wait(0.5)  # coast to rest
+            b.reset_encoders()
+            s = b.wait(0.1)[-1]
+            assert all(abs(c) <= 1 for c in s.encoder)
+            b.sim_set_world(mode="ground")
+
+    def test_silent_host_watchdog_stops_motors(self, target) -> None:
+        with Board.open(target.url, heartbeat=False) as b:
+            b.clear_faults()
+            b.configure(telemetry_hz=200, watchdog_s=0.1)
+            b.set_duties([0.3] * 4)
+            t_cmd = b.board_time
+            s = b.wait(0.3)
+            stopped = [x for x in s if x.t > t_cmd and x.duty == (0.0, 0.0, 0.0, 0.0)]
+            assert stopped, "motors still running after the watchdog timeout"
+            assert stopped[0].t <= t_cmd + 0.1 + 0.005 + 1e-6
+            assert "WATCHDOG" in b.fault_names(stopped[0].faults)
+            assert target.status()["motors_stopped"]
+            with pytest.raises(BoardError, match="WATCHDOG"):
+                b.set_duties([0.3] * 4)
+            b.clear_faults()
+            b.set_duties([0.1] * 4)
+            b.stop()
+
+    def test_heartbeat_keeps_motors_running(self, target) -> None:
+        with Board.open(target.url) as b:
+            b.clear_faults()
+            b.configure(telemetry_hz=100, watchdog_s=0.1)
+            b.set_duties([0.2] * 4)
+            t_cmd = b.board_time
+            s = [x for x in b.wait(0.6) if x.t > t_cmd]
+            assert s and all(x.duty[0] > 0.19 and x.faults == 0 for x in s)
+
+    def test_simulated_operator_and_tape_measure(self, target) -> None:
+        with Board.open(target.url) as b:
+            b.clear_faults()
+            b.sim_set_world(mode="ground", payload=1.0)
+            b.configure(telemetry_hz=100)
+            p0 = b.sim_truth()
+            assert p0.mode == "ground"
+            b.set_duties([0.4] * 4)
+            b.wait(0.5)
+            with pytest.raises(BoardError, match="stop the motors"):
+                b.sim_set_world(mode="upside_down")
+            b.stop()
+            p1 = b.sim_truth()
+            assert p1.x - p0.x > 0.05 and abs(p1.y - p0.y) < 0.01
+            b.sim_set_world(payload=0.0)
+
+    def test_commands_round_trip(self, target) -> None:
+        with Board.open(target.url) as b:
+            rtts = [b.ping() for _ in range(3)]
+            assert all(r > 0 for r in rtts)
+            assert b.stats.retries == 0
+
+    def test_bad_duties_refused_before_sending(self, target) -> None:
+        with Board.open(target.url) as b:
+            sent = b.stats.bytes_out
+            with pytest.raises(UserError, match=r"\[-1, 1\]"):
+                b.set_duties([1.5, 0, 0, 0])
+            with pytest.raises(UserError):
+                b.set_duties([0.1, 0.1, 0.1])
+            assert b.stats.bytes_out == sent
+
+    def test_exception_in_block_stops_motors(self, target) -> None:
+        with pytest.raises(RuntimeError):
+            with Board.open(target.url) as b:
+                b.clear_faults()
+                b.set_duties([0.3] * 4)
+                assert not target.status()["motors_stopped"]
+                raise RuntimeError("procedure failed")
+        assert target.status()["motors_stopped"]

@@ -1,0 +1,71 @@
+"""`omnibench sim serve`: signals stop the motors; an interrupted client stops them too; fast clock."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+from omnibench.link.board import Board
+from omnibench.sim.testing import spawn_server
+
+
+def test_sigint_to_server_stops_motors_and_says_so(tmp_path) -> None:
+    served = spawn_server(tmp_path, "--seed", "3")
+    try:
+        b = Board.open(served.path, heartbeat=True)
+        b.set_duties([0.3] * 4)
+        time.sleep(0.2)
+        assert served.status()["motors_stopped"] is False
+        assert served.stop(signal.SIGINT) == 0
+        st = served.status()
+        assert st["serving"] is False and st["motors_stopped"] is True and st["duties"] == [0.0] * 4
+        b.close()
+    finally:
+        served.stop()
+
+
+def test_interrupted_client_leaves_motors_stopped(tmp_path) -> None:
+    """Ctrl-C in a procedure: the `with Board.open(...)` exit path sends STOP."""
+    served = spawn_server(tmp_path, "--seed", "4")
+    client = textwrap.dedent(f"""
+        import sys, time
+        from omnibench.link.board import Board
+        with Board.open({served.path!r}) as b:
+            b.configure(telemetry_hz=50)
+            b.set_duties([0.3, 0.3, 0.3, 0.3])
+            print("driving", flush=True)
+            for s in b.samples(60.0):
+                pass
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", client], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "driving"
+        time.sleep(0.3)
+        assert served.status()["motors_stopped"] is False
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+        time.sleep(0.1)
+        st = served.status()
+        assert st["motors_stopped"] is True and st["last_command"] == "STOP"
+        assert st["faults"] == []  # stopped by the client, not by the watchdog
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.stdout.close()
+        proc.stderr.close()
+        served.stop()
+
+
+def test_fast_clock_on_pty_loses_nothing(tmp_path) -> None:
+    served = spawn_server(tmp_path, "--clock", "fast", "--seed", "5")
+    try:
+        with Board.open(served.path) as b:
+            b.configure(telemetry_hz=200)
+            s = b.wait(2.0)
+            assert len(s) >= 400 and b.stats.lost == 0
+            assert all(abs(y.t - x.t - 0.005) < 2e-6 for x, y in zip(s, s[1:]))
+    finally:
+        served.stop()
