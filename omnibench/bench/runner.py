@@ -130,7 +130,8 @@ class Runner:
                  progress: Callable[[float, str], None] | None = None,
                  echo: Callable[[str], None] | None = None, read_timeout: float = 2.0) -> None:
         self.plan, self.robot, self.board, self.writer, self.operator = plan, robot, board, writer, operator
-        self.progress = progress or (lambda done, label: None)
+        self._progress = progress or (lambda done, label: None)
+        self._step_progress = 0.0
         self.echo = echo or (lambda line: None)
         self.read_timeout = read_timeout
         self.world: World | None = None
@@ -144,6 +145,11 @@ class Runner:
         self._duties = (0.0, 0.0, 0.0, 0.0)
         self.done_time = 0.0
         self.records: list[dict[str, Any]] = []
+
+    def progress(self, dt: float, label: str) -> None:
+        """Report `dt` board seconds of progress, capped at the step's planned maximum."""
+        self._step_progress += dt
+        self._progress(dt, label)
 
     # -- board helpers ----------------------------------------------------------------------
     def _command(self, duties: Sequence[float], t_now: float | None = None) -> None:
@@ -259,6 +265,10 @@ class Runner:
                       "mode": step.world.mode, "wheel_set": step.world.wheel_set,
                       "payload": step.world.payload, **step.params, **rec}
             self.writer.event("step_end", t=rec.get("t_end"), step=step.index)
+            left = step.max_time - self._step_progress  # a sweep step usually ends early
+            if left > 0:
+                self._progress(left, step.label)
+            self._step_progress = 0.0
             self.writer.step_complete(record)
             self.records.append(record)
         self._stop()
