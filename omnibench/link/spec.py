@@ -10,6 +10,7 @@ from __future__ import annotations
 import struct
 import tomllib
 from dataclasses import dataclass, field
+from functools import cached_property
 from fractions import Fraction
 from pathlib import Path
 
@@ -80,7 +81,7 @@ class MessageSpec:
     reply: str | None = None
     doc: str = ""
 
-    @property
+    @cached_property
     def struct(self) -> struct.Struct:
         """Little-endian struct of the payload (no header, no CRC)."""
         return struct.Struct("<" + "".join(f"{f.count}{WIRE_TYPES[f.type][0]}" for f in self.fields))
@@ -136,7 +137,7 @@ class ProtocolSpec:
         """True if the protocol defines a message called `name`."""
         return name in self._by_name  # type: ignore[attr-defined]
 
-    @property
+    @cached_property
     def header_struct(self) -> struct.Struct:
         """Little-endian struct of the frame header (msg_id, seq)."""
         return struct.Struct("<" + "".join(WIRE_TYPES[f.type][0] for f in self.header))

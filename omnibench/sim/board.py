@@ -107,7 +107,7 @@ class SimBoard:
     # ------------------------------------------------------------------ time
     def _watchdog_deadline(self) -> int | None:
         """The watchdog is armed while any duty is non-zero: silence until then stops them."""
-        if np.any(self.duties != 0):
+        if self.duties.any():
             return self.last_rx_clock_us + self.watchdog_us
         return None
 
