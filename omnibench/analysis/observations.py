@@ -291,9 +291,12 @@ def _from_run(run: Any, robot: Any) -> Observations:
     rid = str(run.metadata.get("run_id") or run.path.name)
     rb = _run_robot(run, robot)
     cpr = float(run.metadata.get("counts_per_rev") or rb.counts_per_rev)
+    imported = bool(run.metadata.get("imported", False))
+    # omnibench boards report, with each sample, the duty that acted over the interval before it;
+    # the 2019 Arduino logs printed the command that acts from the sample on (predictor.DUTY_TIMINGS)
     info = {"procedure": run.procedure, "path": str(run.path), "status": run.status,
-            "counts_per_rev": cpr, "source": run.metadata.get("source"),
-            "imported": bool(run.metadata.get("imported", False))}
+            "counts_per_rev": cpr, "source": run.metadata.get("source"), "imported": imported,
+            "duty_timing": str(run.metadata.get("duty_timing") or ("from_sample" if imported else "interval_before"))}
     obs = Observations(runs={rid: info})
     steps = run.steps
     if not len(steps):
@@ -383,8 +386,9 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
 
 def drive_window(duration: float) -> tuple[float, float]:
     """Part of a timed run's drive phase used for its mean wheel speeds, s after the start:
-    from a third of the drive (past the acceleration) to its end."""
-    return duration / 3.0, duration
+    from a third of the drive (past the acceleration) to 90 % of it (clear of the stop, whose
+    timing is known only to a sample interval)."""
+    return duration / 3.0, 0.9 * duration
 
 
 def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: float, payload: float,

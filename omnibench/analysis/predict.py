@@ -57,8 +57,9 @@ def _scenario(obs: Observations, proc: str, run: str, step: int) -> Scenario:
     return Scenario(mode="ground", payload=payload)
 
 
-def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
-    """Simulate the trace's logged duties; measured and predicted signals at the sample times.
+def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "from_sample") -> pd.DataFrame:
+    """Simulate the trace's logged duties (`timing`: see predictor.DUTY_TIMINGS); measured and
+    predicted signals at the sample times.
 
     Columns: t, phi{j}_meas / phi{j}_pred (rad since the first sample), w{j}_meas / w{j}_pred
     (rad/s, successive-reading differences, at the interval midpoints; last row NaN),
@@ -68,9 +69,10 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario) -> pd.DataFrame:
     t = tr["t"].to_numpy(dtype=float)
     t0 = t[0]
     ts = t - t0
-    t_cmd, U = commands_from_trace(tr.assign(t=ts))
-    sim = simulate(robot, scenario, t_cmd, U, float(ts[-1]) + 2 * PHYSICS_DT, dt=PHYSICS_DT)
-    st = sim["t"].to_numpy()
+    t_cmd, U = commands_from_trace(tr.assign(t=ts), timing)
+    shift = max(0.0, -float(t_cmd[0]))
+    sim = simulate(robot, scenario, t_cmd + shift, U, float(ts[-1]) + shift + 2 * PHYSICS_DT, dt=PHYSICS_DT)
+    st = sim["t"].to_numpy() - shift
     out = pd.DataFrame({"t": t})
     dts = np.diff(ts)
     for j in range(1, 5):
@@ -104,6 +106,11 @@ class RunPrediction:
     entries: pd.DataFrame | None = None
 
 
+def duty_timing(obs: Observations, run: str) -> str:
+    """The run's duty timing convention (predictor.DUTY_TIMINGS)."""
+    return str(obs.runs.get(run, {}).get("duty_timing", "from_sample"))
+
+
 def _trace_groups(obs: Observations, run: str, proc: str) -> dict[int, pd.DataFrame]:
     keys = sorted(k for k in obs.traces if k[0] == run)
     if proc == "step_response" and keys:
@@ -129,7 +136,7 @@ def predict_runs(robot: Any, obs: Observations) -> list[RunPrediction]:
             b.append(np.asarray(p, dtype=float).ravel())
 
         for step, tr in _trace_groups(sub, run, proc).items():
-            rep = replay(robot, tr, _scenario(sub, proc, run, step))
+            rep = replay(robot, tr, _scenario(sub, proc, run, step), duty_timing(obs, run))
             rp.traces[step] = rep
             add("wheel_speed", rep[[f"w{j}_meas" for j in range(1, 5)]].to_numpy(),
                 rep[[f"w{j}_pred" for j in range(1, 5)]].to_numpy())

@@ -45,15 +45,30 @@ ENTRY_COLUMNS = ["procedure", "run", "step", "wheel", "signal", "unit", "measure
 
 @dataclass
 class _Group:
-    """Trajectories sharing command times and duration: simulated in one batch."""
+    """Trajectories simulated in one batch: their schedules are merged into one command time
+    base (`union_schedule`), shifted by `shift` s so the earliest command is at 0."""
 
-    t_cmd: np.ndarray
-    t_end: float
-    U: list[np.ndarray] = field(default_factory=list)  # each (K, 4)
+    record_every: int = 10
+    schedules: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (t_cmd (K,), U (K, 4))
+    t_ends: list[float] = field(default_factory=list)  # s, in the schedules' frame
     scen: list[Scenario] = field(default_factory=list)
     # after simulating: how to turn the recorded signals of trajectory k into entries
     extract: list[Any] = field(default_factory=list)
-    record_every: int = 10
+    _built: tuple | None = None
+
+    def add(self, t_cmd, U, t_end: float, scen: Scenario, extract: Any) -> None:
+        self.schedules.append((np.asarray(t_cmd, dtype=float), np.asarray(U, dtype=float)))
+        self.t_ends.append(float(t_end))
+        self.scen.append(scen)
+        self.extract.append(extract)
+        self._built = None
+
+    def built(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """(t_cmd, U (B, K, 4), shift s, t_end s in the simulation's frame)."""
+        if self._built is None:
+            t_cmd, U, shift = union_schedule(self.schedules)
+            self._built = (t_cmd, U, shift, max(self.t_ends) + shift)
+        return self._built
 
 
 class Predictor:
@@ -78,11 +93,15 @@ class Predictor:
         self.entries.append(row)
         return len(self.entries) - 1
 
-    def _group(self, key: tuple, t_cmd, t_end: float, record_every: int) -> _Group:
+    def _group(self, key: tuple, record_every: int) -> _Group:
         g = self.groups.get(key)
         if g is None:
-            g = self.groups[key] = _Group(np.asarray(t_cmd, dtype=float), float(t_end), record_every=record_every)
+            g = self.groups[key] = _Group(record_every=record_every)
         return g
+
+    def timing(self, run: str) -> str:
+        """Duty timing convention of a run (see DUTY_TIMINGS)."""
+        return str(self.obs.runs.get(run, {}).get("duty_timing", "from_sample"))
 
     def _build_sweep(self, df: pd.DataFrame) -> None:
         for (run, step), rows in df.groupby(["run", "step"], sort=False):
@@ -93,7 +112,7 @@ class Predictor:
                 masses[int(r["wheel"]) - 1] = float(r["wheel_mass"])
             fill = next((m for m in masses if m is not None), 1.0)
             masses = tuple(m if m is not None else fill for m in masses)
-            g = self._group(("sweep",), [0.0], SWEEP_HOLD, int(round(SWEEP_HOLD / PHYSICS_DT)))
+            g = self._group(("sweep",), int(round(SWEEP_HOLD / PHYSICS_DT)))
             idx = []
             for _, r in rows.iterrows():
                 j = int(r["wheel"])
@@ -104,9 +123,8 @@ class Predictor:
                 if math.isfinite(r["current"]):
                     k = self._add(signal="current", unit="A", measured=r["current"], sigma=r["current_se"], **meta)
                     idx.append(("current", j, k))
-            g.U.append(U[None, :])
-            g.scen.append(Scenario(mode="upside_down", wheel_mass=masses, effects=self.world_effects))
-            g.extract.append(("sweep", idx))
+            g.add([0.0], U[None, :], SWEEP_HOLD, Scenario(mode="upside_down", wheel_mass=masses,
+                                                         effects=self.world_effects), ("sweep", idx))
 
     def _build_timed(self, df: pd.DataFrame, proc: str) -> None:
         for _, r in df.iterrows():
@@ -114,7 +132,14 @@ class Predictor:
             dur, tot = float(r["duration"]), float(r["t_total"])
             if not (math.isfinite(dur) and math.isfinite(tot)):
                 continue
-            g = self._group((proc, round(dur, 6), round(tot, 6)), [0.0, dur], tot, int(round(RECORD_DT / PHYSICS_DT)))
+            g = self._group((proc,), int(round(RECORD_DT / PHYSICS_DT)))
+            tr = self.obs.traces.get((r["run"], int(r["step"])))
+            if tr is not None and len(tr) >= 3:
+                t_cmd, U = commands_from_trace(tr, self.timing(r["run"]))
+                # motors off after the last logged sample (the schedule ends with the trace)
+                t_cmd, U = np.append(t_cmd, max(tot, float(tr["t"].iloc[-1])) + RECORD_DT), np.vstack([U, np.zeros(4)])
+            else:
+                t_cmd, U = np.array([0.0, dur]), np.stack([u, np.zeros(4)])
             meta = dict(procedure=proc, run=r["run"], step=int(r["step"]), F_N=np.nan, time=np.nan,
                         current=np.nan, payload=r["payload"])
             idx = []
@@ -128,9 +153,8 @@ class Predictor:
                     k = self._add(signal=sig, unit="m", wheel=0, measured=r[col], sigma=r["measured_se"],
                                   speed=np.nan, direction=float(np.sign(r[col])), u=np.nan, **meta)
                     idx.append((sig, 0, k))
-            g.U.append(np.stack([u, np.zeros(4)]))
-            g.scen.append(Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects))
-            g.extract.append((proc, idx, (float(r["w_t0"]), float(r["w_t1"]))))
+            g.add(t_cmd, U, tot, Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects),
+                  (proc, idx, (float(r["w_t0"]), float(r["w_t1"]))))
 
     def _build_forward(self, df: pd.DataFrame) -> None:
         self._build_timed(df, "forward")
@@ -143,14 +167,15 @@ class Predictor:
             tr = self.obs.traces.get((r["run"], int(r["step"])))
             if tr is None or not math.isfinite(r["t_total"]):
                 continue
-            t_cmd, U = commands_from_trace(tr)
+            t_cmd, U = commands_from_trace(tr, self.timing(r["run"]))
             key = ("energy", r["run"], int(r["step"]))
-            g = self._group(key, t_cmd, float(r["t_total"]), int(round(RECORD_DT / PHYSICS_DT)))
+            g = self._group(key, 1)
+            t_last = float(tr["t"].iloc[-1])
             k = self._add(procedure="energy", run=r["run"], step=int(r["step"]), wheel=0, signal="energy", unit="J",
                           measured=r["measured_J"], sigma=np.nan, payload=r["payload"])
-            g.U.append(U)
-            g.scen.append(Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects))
-            g.extract.append(("energy", [("energy", 0, k)]))
+            g.add(t_cmd, U, t_last + PHYSICS_DT, Scenario(mode="ground", payload=float(r["payload"]),
+                                                         effects=self.world_effects),
+                  ("energy", [("energy", 0, k)], tr["t"].to_numpy(dtype=float)))
 
     def _build_step_response(self, df: pd.DataFrame) -> None:
         for run, rows in df.groupby("run", sort=False):
@@ -161,9 +186,9 @@ class Predictor:
             t = tr["t"].to_numpy(dtype=float)
             t0 = t[0]
             ts = t - t0
-            t_cmd, U = commands_from_trace(tr.assign(t=ts))
+            t_cmd, U = commands_from_trace(tr.assign(t=ts), self.timing(run))
             key = ("step_response", run)
-            g = self._group(key, t_cmd, float(ts[-1]) + PHYSICS_DT, 1)
+            g = self._group(key, 1)
             phi = tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(dtype=float)
             dt = np.diff(ts)
             w = np.diff(phi, axis=0) / dt[:, None]
@@ -177,9 +202,8 @@ class Predictor:
                                   direction=float(np.sign(u_log[n, j])), time=tm[n] + t0, u=u_log[n, j],
                                   payload=0.0)
                     idx.append(("omega_fd", j + 1, k))
-            g.U.append(U)
-            g.scen.append(Scenario(mode="upside_down", effects=self.world_effects))
-            g.extract.append(("step_response", idx, ts))
+            g.add(t_cmd, U, float(ts[-1]) + PHYSICS_DT, Scenario(mode="upside_down", effects=self.world_effects),
+                  ("step_response", idx, ts))
 
     # ------------------------------------------------------------------------ predicting
     def __len__(self) -> int:
@@ -195,23 +219,21 @@ class Predictor:
         return stable_substeps(lam, PHYSICS_DT)
 
     def predict(self, robots: Sequence[Any], *, substeps: int | None = None) -> np.ndarray:
-        """Predictions (len(robots), len(self)) of every entry, one batch per command-timing group."""
+        """Predictions (len(robots), len(self)) of every entry, one simulate_batch call per group."""
         P = len(robots)
         out = np.full((P, len(self.entries)), np.nan)
         for g in self.groups.values():
-            n = len(g.U)
+            t_cmd, U, shift, t_end = g.built()
+            n = U.shape[0]
             rob = [r for r in robots for _ in range(n)]
-            scen = g.scen * P
-            U = np.stack(g.U * P)
-            t_end = g.t_end
-            res = simulate_batch(rob, scen, g.t_cmd, U, t_end, dt=PHYSICS_DT, record_every=g.record_every,
-                                 substeps=substeps)
+            res = simulate_batch(rob, g.scen * P, t_cmd, np.concatenate([U] * P), t_end, dt=PHYSICS_DT,
+                                 record_every=g.record_every, substeps=substeps)
             for p in range(P):
                 for k, ex in enumerate(g.extract):
-                    self._extract(out[p], res, p * n + k, ex, robots[p])
+                    self._extract(out[p], res, p * n + k, ex, shift)
         return out
 
-    def _extract(self, out: np.ndarray, res, b: int, ex: tuple, robot: Any) -> None:
+    def _extract(self, out: np.ndarray, res, b: int, ex: tuple, shift: float) -> None:
         kind = ex[0]
         if kind == "sweep":
             for sig, j, k in ex[1]:
@@ -219,7 +241,7 @@ class Predictor:
                 out[k] = res.signal(name)[b, -1]
         elif kind in ("forward", "lateral"):
             idx, (a, bb) = ex[1], ex[2]
-            t = res.t
+            t = res.t - shift
             sel = (t >= a - 1e-9) & (t <= bb + 1e-9)
             phi = np.stack([res.signal(f"phi{j}")[b] for j in range(1, 5)], axis=1)
             w, _ = slope_fit(t[sel], phi[sel])
@@ -232,12 +254,13 @@ class Predictor:
                 else:
                     out[k] = y
         elif kind == "energy":
+            ts = ex[2]
+            E = np.interp(ts + shift, res.t, res.signal("E_batt")[b])
             for _, _, k in ex[1]:
-                out[k] = res.signal("E_batt")[b, -1]
+                out[k] = E[-1] - E[0]
         elif kind == "step_response":
             ts = ex[2]
-            tt = res.t
-            ph = [np.interp(ts, tt, res.signal(f"phi{j}")[b]) for j in range(1, 5)]
+            ph = [np.interp(ts + shift, res.t, res.signal(f"phi{j}")[b]) for j in range(1, 5)]
             dts = np.diff(ts)
             w = [np.diff(p) / dts for p in ph]
             m = len(dts)
@@ -245,11 +268,39 @@ class Predictor:
                 out[k] = w[j - 1][n % m]
 
 
-def commands_from_trace(tr: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """(t_cmd (K,), U (K, 4)): the logged duties as a zero-order-hold schedule (only changes kept)."""
+#: How a logged duty relates to its sample time.
+#: "interval_before": sample k reports the duty that acted over (t_k-1, t_k] (omnibench boards:
+#: a command sent after reading sample k-1 acts from t_k-1); "from_sample": the duty logged at t_k
+#: acts from t_k on (the 2019 Arduino logs: command printed, then applied).
+DUTY_TIMINGS = ("interval_before", "from_sample")
+
+
+def commands_from_trace(tr: pd.DataFrame, timing: str = "from_sample") -> tuple[np.ndarray, np.ndarray]:
+    """(t_cmd (K,), U (K, 4)): the logged duties as a zero-order-hold schedule in the trace's time
+    frame (only changes kept; with "interval_before" each change starts one sample earlier,
+    the first one a sample interval before the first sample, so t_cmd may start below 0)."""
+    if timing not in DUTY_TIMINGS:
+        raise ValueError(f"timing must be one of {DUTY_TIMINGS}")
     t = tr["t"].to_numpy(dtype=float)
     U = np.nan_to_num(tr[[f"u{j}" for j in range(1, 5)]].to_numpy(dtype=float))
     keep = np.ones(len(t), dtype=bool)
     keep[1:] = np.any(np.diff(U, axis=0) != 0, axis=1)
-    tc = np.maximum(t[keep], 0.0)
-    return tc, U[keep]
+    starts = t.copy()
+    if timing == "interval_before" and len(t) > 1:
+        starts[1:] = t[:-1]
+        starts[0] = t[0] - (t[1] - t[0])
+    return starts[keep], U[keep]
+
+
+def union_schedule(schedules: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, float]:
+    """Several schedules (t_cmd, U) in one time frame -> (common t_cmd from 0, U (B, K, 4), shift):
+    shift (s) is added to every time so that the earliest command is at 0; before its first
+    command a trajectory's duty is 0."""
+    shift = max(0.0, -min(float(tc[0]) for tc, _ in schedules)) if schedules else 0.0
+    times = np.unique(np.concatenate([np.asarray(tc, dtype=float) + shift for tc, _ in schedules] + [np.zeros(1)]))
+    Us = []
+    for tc, U in schedules:
+        idx = np.searchsorted(np.asarray(tc, dtype=float) + shift, times + 1e-12, side="right") - 1
+        Ub = np.where(idx[:, None] >= 0, np.asarray(U, dtype=float)[np.maximum(idx, 0)], 0.0)
+        Us.append(Ub)
+    return times, np.stack(Us) if Us else np.zeros((0, len(times), 4)), shift

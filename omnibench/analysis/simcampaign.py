@@ -82,7 +82,8 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
         plan = _plan(proc, robot, files)
         rid = f"{run_prefix}-{proc}-{seed}"
         obs.runs[rid] = {"procedure": plan.procedure, "path": None, "status": "complete",
-                         "counts_per_rev": cpr, "source": "Observations.simulated", "imported": False}
+                         "counts_per_rev": cpr, "source": "Observations.simulated", "imported": False,
+                         "duty_timing": "from_sample"}
         steps = plan.steps
         if proc == "sweep":
             scen = [Scenario(mode="upside_down", wheel_mass=s.world.wheel_mass, effects=world_effects) for s in steps]

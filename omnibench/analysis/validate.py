@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations
-from omnibench.analysis.predict import nrmse, replay
+from omnibench.analysis.predict import duty_timing, nrmse, replay
 from omnibench.errors import UserError
 from omnibench.model.scenario import Scenario
 
@@ -69,7 +69,7 @@ def validate_energy(robot: Any, obs: Observations) -> EnergyValidation:
                "predicted_exact_J": float("nan")}
         if tr is not None and len(tr) >= 3:
             payload = float(r["payload"]) if math.isfinite(r["payload"]) else 0.0
-            rep = replay(robot, tr, Scenario(mode="ground", payload=payload))
+            rep = replay(robot, tr, Scenario(mode="ground", payload=payload), duty_timing(obs, r["run"]))
             traces[key] = rep
             # the model's energy by the same trapezoid over the same samples as the measurement
             t = rep["t"].to_numpy()

@@ -64,8 +64,10 @@ def _write_energy_run(tmp_path, truth):
     w = RunWriter.create(tmp_path, "energy_trajectories", counts_per_rev=truth.counts_per_rev)
     with w:
         for n, row in sim.iterrows():
-            k = min(int(np.searchsorted(t_cmd, row["t"] + 1e-9, side="right")) - 1, 2)
-            w.sample({"step": 0, "t": 10.0 + row["t"], "seq": n, **{f"u{j + 1}": U[k][j] for j in range(4)},
+            # like an omnibench board: each sample reports the duty that acted over the interval before it
+            k = min(int(np.searchsorted(t_cmd, row["t"] - 1e-9, side="right")) - 1, 2)
+            u = U[k] if k >= 0 else [0.0] * 4
+            w.sample({"step": 0, "t": 10.0 + row["t"], "seq": n, **{f"u{j + 1}": u[j] for j in range(4)},
                       **{f"enc{j + 1}": int(math.floor(row[f"phi{j + 1}"] * truth.counts_per_rev / (2 * math.pi)))
                          for j in range(4)},
                       "V_batt": row["V_batt"], "I_batt": row["I_batt"]})

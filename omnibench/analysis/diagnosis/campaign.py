@@ -1,0 +1,117 @@
+"""A simulated measurement campaign for diagnosis tests and benchmarks (seeded, no serial link).
+
+`simulated_campaign(robot, world_effects, seed=..., procedures=...)` returns the fit engineer's
+`Observations`:
+
+- sweep / forward / lateral / energy: `Observations.simulated` (the shipped procedure files,
+  or `files`), i.e. the model run over every step with the simulated board's sensor models:
+  encoder counts floored at 980 counts/rev with a random mounting offset, motor current noise
+  0.01 A (1 mA resolution), battery voltage 5 mV, battery current 0.01 A, tape 2 mm.
+- step_response: a square wave on all four wheels with the robot upside down, simulated as
+  one continuous run (so slow states such as winding temperature carry from step to step),
+  sampled at irregular intervals like the 2019 logs (`SquareWave`), encoder counts floored;
+  motor currents logged only when `SquareWave.current`.
+
+The world carries `world_effects` ({effect: {param: value}}) that the declared model may not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from omnibench.analysis.observations import STEP_RESPONSE_COLUMNS, TRACE_COLUMNS, Observations
+from omnibench.model.scenario import Scenario
+from omnibench.model.simulator import simulate_batch
+
+CURRENT_NOISE = 0.01  # A, as the simulated board
+CURRENT_LSB = 1e-3  # A
+
+
+@dataclass(frozen=True)
+class SquareWave:
+    """The step-response experiment: duties cycled every `half_period` s for `duration` s."""
+
+    duties: tuple[float, ...] = (0.8, -0.8)
+    half_period: float = 1.0
+    duration: float = 12.0
+    sample_dt: float = 0.03  # s, mean logging interval
+    jitter: float = 0.01  # s, +/- uniform jitter of the interval (the 2019 logs: 17-45 ms)
+    current: bool = False
+
+
+def simulated_campaign(robot: Any, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
+                       seed: int = 0, procedures: Sequence[str] = ("sweep",),
+                       step_response: SquareWave | None = None, current: bool = True,
+                       files: Mapping[str, str | Path] | None = None) -> Observations:
+    """Observations of a campaign on a simulated robot whose world carries `world_effects`.
+
+    procedures: any of sweep, forward, lateral, energy (the shipped procedure files or `files`);
+    step_response: add a square-wave run. current: log motor currents in the sweep."""
+    world = {k: dict(v) for k, v in (world_effects or {}).items()}
+    procs = [p for p in procedures if p != "step_response"]
+    obs = (Observations.simulated(robot, world_effects=world, procedures=procs, seed=seed, current=current,
+                                  files=files) if procs else Observations())
+    if step_response is not None or "step_response" in procedures:
+        sr = _square_wave(robot, world, step_response or SquareWave(), seed)
+        obs = Observations.concat([obs, sr])
+    return obs
+
+
+def _square_wave(robot: Any, world: Mapping[str, Mapping[str, float]], spec: SquareWave, seed: int) -> Observations:
+    rng = np.random.default_rng(seed + 7919)
+    n_seg = int(math.ceil(spec.duration / spec.half_period))
+    t_cmd = [k * spec.half_period for k in range(n_seg)]
+    duties = [spec.duties[k % len(spec.duties)] for k in range(n_seg)]
+    U = np.array([[d] * 4 for d in duties])
+    dt = 1e-3
+    res = simulate_batch(robot, Scenario(mode="upside_down", effects=world), t_cmd, U, spec.duration, dt=dt,
+                         record_every=1)
+    # irregular sample times, like the Arduino's loop; the loop that sends a new command logs
+    # it, so every switch time (and the start) is a sample time
+    ts = [0.0]
+    while ts[-1] + spec.sample_dt + spec.jitter < spec.duration:
+        ts.append(ts[-1] + spec.sample_dt + rng.uniform(-spec.jitter, spec.jitter))
+    ts = np.asarray(ts)
+    switches = np.asarray(t_cmd, dtype=float)
+    near = np.min(np.abs(ts[:, None] - switches[None, :]), axis=1) < 0.5 * spec.sample_dt
+    ts = np.unique(np.round(np.concatenate([ts[~near], switches]), 3))  # millisecond clock
+    ts = ts[ts < spec.duration]
+    idx = np.minimum(np.round(ts / dt).astype(int), len(res.t) - 1)
+    k = robot.counts_per_rev / (2 * math.pi)
+    off = rng.uniform(0, 1, 4)
+    rid = f"sim-step_response-{seed}"
+    seg = np.minimum(np.floor(ts / spec.half_period + 1e-9).astype(int), n_seg - 1)
+    cols: dict[str, Any] = {"t": ts}
+    for j in range(4):
+        cols[f"u{j + 1}"] = U[seg, j]
+    for j in range(4):
+        counts = np.floor(res.signal(f"phi{j + 1}")[0][idx] * k + off[j])
+        cols[f"phi{j + 1}"] = counts / k
+    for j in range(4):
+        if spec.current:
+            i = res.signal(f"i{j + 1}")[0][idx] + rng.normal(0, CURRENT_NOISE, len(ts))
+            cols[f"i{j + 1}"] = np.round(i / CURRENT_LSB) * CURRENT_LSB
+        else:
+            cols[f"i{j + 1}"] = np.full(len(ts), np.nan)
+    cols["V_batt"] = np.full(len(ts), np.nan)
+    cols["I_batt"] = np.full(len(ts), np.nan)
+    full = pd.DataFrame(cols, columns=TRACE_COLUMNS)
+    obs = Observations(runs={rid: {"procedure": "step_response", "path": None, "status": "complete",
+                                   "counts_per_rev": float(robot.counts_per_rev), "source": "simulated_campaign",
+                                   "imported": False}})
+    rows = []
+    for s in range(n_seg):
+        m = seg == s
+        if not m.any():
+            continue
+        obs.traces[(rid, s)] = full[m].reset_index(drop=True)
+        rows.append({"run": rid, "step": s, "duty": duties[s], "t_start": float(ts[m][0]), "t_end": float(ts[m][-1]),
+                     "n": int(m.sum())})
+    obs.step_response = pd.DataFrame(rows, columns=STEP_RESPONSE_COLUMNS)
+    return obs

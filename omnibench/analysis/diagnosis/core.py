@@ -1,0 +1,363 @@
+"""diagnose(): fit the declared model, find structure, add the effect that earns its place, repeat.
+
+Algorithm (docs/diagnose.md has the long form):
+
+1. Fit the declared model (parameters the data can identify, per `fitting.fit`) by profile
+   likelihood over every entry of every procedure (engine.py).
+2. Study the residual: binned-mean and runs tests per group against speed, duty, load,
+   direction, wheel, time, current, payload, step order (structure.py).
+3. Screen every library candidate with a first-order score test (residual projected on the
+   candidate's sensitivities), refit the most promising `top_k` exactly (nonlinear, together
+   with the model's own parameters).
+4. A candidate earns its place when (a) its likelihood-ratio test against the current model
+   passes p < alpha / m (m candidates tested: Bonferroni), (b) it lowers the held-out
+   (K-fold over run steps) weighted error by more than 2 per parameter, and (c) it removes at
+   least half of the residual structure (otherwise it only leans on structure something else
+   makes: reported, not added). Among those, the lowest AIC wins; others within AMBIGUOUS of it
+   are reported as not separable with these data, with the experiment that would separate them.
+5. Add the winner, refit, repeat until nothing earns its place (or `max_effects`).
+6. Report what structure remains, and the held-out error before and after per procedure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from omnibench.analysis.diagnosis import engine, structure
+from omnibench.analysis.observations import Observations
+from omnibench.effects.library import EFFECTS, Effect
+from omnibench.errors import UserError
+
+ALPHA = 1e-3  # family-wise level for adding an effect
+AMBIGUOUS = 10.0  # AIC difference below which two candidates are not told apart
+PARTIAL = 0.5  # a candidate must remove at least this fraction of the residual structure
+SCREEN_FRACTION = 0.5  # screen LR below this fraction of the add threshold: not refitted
+RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
+
+
+@dataclass
+class Candidate:
+    """One candidate's evidence in one round."""
+
+    name: str
+    round: int
+    approx_lr: float
+    fitted: bool = False
+    values: dict[str, float] = field(default_factory=dict)
+    se: dict[str, float] = field(default_factory=dict)
+    lr: float = float("nan")
+    p: float = float("nan")
+    q: int = 0
+    aic_drop: float = float("nan")
+    cv_gain: float = float("nan")
+    structure_before: float = float("nan")
+    structure_after: float = float("nan")
+    verdict: str = ""
+    reason: str = ""
+    fit: Any = None
+
+    def evidence(self) -> dict[str, Any]:
+        def f(x: float) -> float | None:
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        return {"round": self.round, "likelihood_ratio": f(self.lr), "parameters_added": self.q, "p_value": f(self.p),
+                "aic_drop": f(self.aic_drop), "heldout_gain": f(self.cv_gain), "screen_lr": f(self.approx_lr),
+                "structure_before": f(self.structure_before), "structure_after": f(self.structure_after)}
+
+
+@dataclass
+class Diagnosis:
+    """What diagnose found (see `to_json`)."""
+
+    declared: Any
+    extended: Any
+    base_fit: engine.ModelFit
+    final_fit: engine.ModelFit
+    selected: list[Candidate]
+    rejected: list[Candidate]
+    ambiguous: list[dict[str, Any]]
+    unexplained: list[structure.Finding]
+    base_structure: list[structure.Finding]
+    before: dict[str, dict[str, Any]]
+    after: dict[str, dict[str, Any]]
+    problem: engine.Problem
+    base_heldout: np.ndarray
+    final_heldout: np.ndarray
+    notes: list[str] = field(default_factory=list)
+    exposed_by: dict[str, structure.Finding] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        def f(x: float) -> float | None:
+            return float(x) if x is not None and math.isfinite(x) else None
+
+        sel = []
+        for c in self.selected:
+            eff = EFFECTS[c.name]
+            units = {p.name: p.unit for p in eff.term.params}
+            sel.append({"effect": c.name, "title": eff.term.title,
+                        "parameters": {p: {"value": f(c.values[p]), "se": f(c.se[p]), "unit": units[p.split(".")[-1]]}
+                                       for p in c.values},
+                        "evidence": {**c.evidence(),
+                                     "exposed_by": self.exposed_by[c.name].to_json() if c.name in self.exposed_by else None}})
+        return {
+            "selected": sel,
+            "rejected": [{"effect": c.name, "round": c.round, "reason": c.reason, "evidence": c.evidence(),
+                          "values": {p: f(v) for p, v in c.values.items()}} for c in self.rejected],
+            "ambiguous": self.ambiguous,
+            "unexplained": [u.to_json() for u in self.unexplained],
+            "before": _err_json(self.before),
+            "after": _err_json(self.after),
+            "declared_fit": {p: {"value": f(self.base_fit.values[p]), "se": f(self.base_fit.se[p])} for p in self.base_fit.free},
+            "extended_fit": {p: {"value": f(self.final_fit.values[p]), "se": f(self.final_fit.se[p])} for p in self.final_fit.free},
+            "procedures": list(self.problem.procedures),
+            "entries": int(self.problem.used.sum()),
+            "notes": self.notes,
+        }
+
+    def text(self) -> str:
+        """The report a lab engineer reads."""
+        L: list[str] = []
+        L.append(f"Diagnosis of {self.declared.name} on {int(self.problem.used.sum())} measurements "
+                 f"({', '.join(self.problem.procedures)}).")
+        if self.base_structure:
+            L.append("Declared model leaves structure in the residual:")
+            for s in self.base_structure[:5]:
+                L.append(f"  - {s.location()} [{s.test}, p={s.p:.1e}]")
+        else:
+            L.append("Declared model: no significant structure in the residual.")
+        if self.selected:
+            L.append("Added:")
+            for c in self.selected:
+                vals = ", ".join(f"{p.split('.')[-1]} = {c.values[p]:.4g} ± {c.se[p]:.2g}" for p in c.values)
+                L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
+                L.append(f"    evidence: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e}; AIC -{c.aic_drop:.1f}; "
+                         f"held-out weighted error -{c.cv_gain:.1f}; structure {c.structure_before:.0f} -> {c.structure_after:.0f}")
+                if c.name in self.exposed_by:
+                    L.append(f"    exposed by: {self.exposed_by[c.name].location()}")
+        else:
+            L.append("Added: nothing (no candidate earns its parameters).")
+        if self.ambiguous:
+            L.append("Cannot tell apart with these data:")
+            for a in self.ambiguous:
+                L.append(f"  ? {a['chosen']} vs {a['alternative']} (AIC difference {a['aic_difference']:.1f}): {a['experiment']}")
+        if self.rejected:
+            L.append("Rejected:")
+            for c in self.rejected[:12]:
+                L.append(f"  - {c.name} (round {c.round}): {c.reason}")
+        if self.unexplained:
+            L.append("Structure no candidate explains:")
+            for s in self.unexplained[:6]:
+                L.append(f"  ! {s.location()} [{s.test}, p={s.p:.1e}]")
+        else:
+            L.append("Remaining residual: no significant structure.")
+        L.append("Held-out error (K-fold over run steps), before -> after:")
+        for proc in self.before:
+            b, a = self.before[proc], self.after.get(proc, {})
+            sig = ", ".join(f"{s} {v['rms']:.3g} -> {a.get('signals', {}).get(s, {}).get('rms', float('nan')):.3g} {v['unit']}"
+                            for s, v in b["signals"].items())
+            L.append(f"  {proc:<14} {100 * b['nrmse']:.2f} % -> {100 * a.get('nrmse', float('nan')):.2f} %   ({sig})")
+        for n in self.notes:
+            L.append(f"note: {n}")
+        return "\n".join(L)
+
+
+def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    return {p: {"nrmse": (v["nrmse"] if math.isfinite(v["nrmse"]) else None), "signals": v["signals"]} for p, v in t.items()}
+
+
+def _structure_of(problem: engine.Problem, fit: engine.ModelFit) -> tuple[list[structure.Finding], int]:
+    r = fit.residual(problem)
+    z = r * fit.weights(problem)
+    return structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+
+
+def _score(findings: Sequence[structure.Finding], n_tests: int) -> float:
+    return float(sum(f.score for f in structure.significant(list(findings), n_tests)))
+
+
+def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any, list[str], list[str]]:
+    """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit)."""
+    from omnibench.analysis import fitting
+
+    fit_procs = [p for p in fitting.DEFAULT_PROCEDURES if p in procs]
+    notes: list[str] = []
+    if not fit_procs:
+        return robot, [], ["no sweep/forward/lateral data: the declared model's coefficients are held at the robot file's values"]
+    res = fitting.fit(robot, obs, procedures=fit_procs)
+    free = [p for p in res.fitted]
+    for p in res.free:
+        if p not in free:
+            notes.append(f"{p} held at its robot-file value: {res.identifiable[p].reason}")
+    return res.robot, free, notes
+
+
+def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None = None,
+             procedures: Sequence[str] | None = None, alpha: float = ALPHA, max_effects: int = 3,
+             top_k: int = 3, folds: int = engine.CV_FOLDS, seed: int = 0,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Close the loop on `obs` for the declared `robot`; see the module docstring."""
+    say = progress or (lambda s: None)
+    procs = [p for p in (procedures or obs.procedures()) if len(obs.table(p))]
+    if not procs:
+        raise UserError("no observations to diagnose")
+    names = list(candidates) if candidates is not None else list(EFFECTS)
+    for n in names:
+        if n not in EFFECTS:
+            raise UserError(f"unknown candidate effect {n!r}; known: {', '.join(EFFECTS)}")
+    pool: list[Effect] = [EFFECTS[n] for n in names if n not in robot.effects]
+    say("fitting the declared model")
+    start, free, notes = _base_free(robot, obs, procs)
+    free += [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
+    problem = engine.Problem(obs, procs)
+    if not problem.used.any():
+        raise UserError("no usable measurements in these runs")
+    base = engine.fit_model(problem, start, free, passes=2)
+    fold = engine.cv_folds(problem, folds, seed)
+    base_struct, n_tests = _structure_of(problem, base)
+    base_sig = structure.significant(base_struct, n_tests)
+    current, cur_struct, cur_ntests = base, base_struct, n_tests
+    selected: list[Candidate] = []
+    rejected: list[Candidate] = []
+    ambiguous: list[dict[str, Any]] = []
+    exposed: dict[str, structure.Finding] = {}
+    for rnd in range(1, max_effects + 1):
+        if not pool:
+            break
+        say(f"round {rnd}: screening {len(pool)} candidate effects")
+        scr = engine.screen(problem, current, pool)
+        m = len(pool)
+        thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
+        order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
+        tried: list[Candidate] = []
+        best_ratio = max(scr.approx_lr[e.name] / thr[e.name] for e in pool)
+        for e in order:
+            c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
+            ratio = scr.approx_lr[e.name] / thr[e.name]
+            if len([t for t in tried if t.fitted]) < top_k and ratio >= SCREEN_FRACTION and ratio >= RELATIVE_SCREEN * best_ratio:
+                say(f"round {rnd}: fitting {e.name}")
+                try:
+                    cf = engine.fit_candidate(problem, current, e, scr.estimate[e.name])
+                except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
+                    c.reason = f"fit failed ({exc.__class__.__name__})"
+                    tried.append(c)
+                    continue
+                c.fitted, c.fit = True, cf
+                c.values = {p: cf.values[p] for p in cf.free if p.startswith(e.name + ".")}
+                c.se = {p: cf.se[p] for p in c.values}
+                c.lr, c.p = engine.lr_test(current, cf, e.n_params)
+                c.aic_drop = c.lr - 2 * e.n_params
+                w_common = current.weights(problem)
+                cv0 = engine.cv_score(problem, engine.heldout_residuals(problem, current, fold), w_common)
+                cv1 = engine.cv_score(problem, engine.heldout_residuals(problem, cf, fold, w_common), w_common)
+                c.cv_gain = cv0 - cv1
+                st, nt = _structure_of(problem, cf)
+                c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
+                c._struct = (st, nt)  # type: ignore[attr-defined]
+            else:
+                c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, far below the {thr[e.name]:.1f} needed"
+                            if scr.approx_lr[e.name] < SCREEN_FRACTION * thr[e.name] else
+                            f"first-order test LR ≈ {c.approx_lr:.1f}, far below the leading candidates'")
+                if scr.approx_lr[e.name] <= 1e-12:
+                    c.reason = f"not testable with these data (it does not change any prediction; shows in {', '.join(e.procedures)})"
+            tried.append(c)
+        passing = []
+        for c in tried:
+            if not c.fitted:
+                continue
+            e = EFFECTS[c.name]
+            if not (c.p < alpha / m):
+                c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {alpha / m:.1e})"
+            elif _at_bound(e, c.values):
+                c.reason = (f"its fit runs to the edge of the physical range ({_at_bound(e, c.values)}): it stands in "
+                            "for something else rather than measuring itself")
+            elif not (c.cv_gain > 2 * c.q):
+                change = f"falls by {c.cv_gain:.1f}" if c.cv_gain >= 0 else f"rises by {-c.cv_gain:.1f}"
+                c.reason = f"does not earn its parameters on held-out steps (held-out weighted error {change}, needs to fall by > {2 * c.q})"
+            elif c.structure_before > 0 and c.structure_after > PARTIAL * c.structure_before:
+                c.reason = (f"explains only part of the structure (score {c.structure_before:.0f} -> {c.structure_after:.0f}); "
+                            "it leans on structure another mechanism makes")
+            else:
+                passing.append(c)
+        if not passing:
+            rejected += tried
+            break
+        passing.sort(key=lambda c: -c.aic_drop)
+        best = passing[0]
+        for c in passing[1:]:
+            diff = best.aic_drop - c.aic_drop
+            if diff < AMBIGUOUS:
+                ambiguous.append({"chosen": best.name, "alternative": c.name, "aic_difference": float(diff),
+                                  "experiment": separating_experiment(EFFECTS[best.name], EFFECTS[c.name])})
+                c.reason = f"fits almost as well as {best.name} (AIC difference {diff:.1f}): not separable with these data"
+            else:
+                c.reason = f"significant, but {best.name} explains the data better (AIC difference {diff:.1f})"
+        best.verdict = "selected"
+        rejected += [c for c in tried if c is not best]
+        selected.append(best)
+        exposed_f = _exposing_finding(cur_struct, cur_ntests, best._struct)  # type: ignore[attr-defined]
+        if exposed_f is not None:
+            exposed[best.name] = exposed_f
+        say(f"round {rnd}: added {best.name}")
+        current = best.fit
+        cur_struct, cur_ntests = best._struct  # type: ignore[attr-defined]
+        pool = [e for e in pool if e.name != best.name]
+    final_sig = structure.significant(cur_struct, cur_ntests)
+    say("held-out errors")
+    base_ho = engine.heldout_residuals(problem, base, fold)
+    final_ho = engine.heldout_residuals(problem, current, fold)
+    if (fold < 0).any():
+        notes.append("procedures with a single run step cannot be held out: "
+                     + ", ".join(sorted(set(problem.table.loc[fold < 0, "procedure"]))))
+    if not base.converged or not current.converged:
+        notes.append("a fit stopped at its evaluation limit; values are the last iterate")
+    return Diagnosis(declared=robot, extended=current.robot, base_fit=base, final_fit=current, selected=selected,
+                     rejected=rejected, ambiguous=ambiguous, unexplained=final_sig, base_structure=base_sig,
+                     before=engine.error_table(problem, base_ho), after=engine.error_table(problem, final_ho),
+                     problem=problem, base_heldout=base_ho, final_heldout=final_ho, notes=notes, exposed_by=exposed)
+
+
+def _at_bound(effect: Effect, values: Mapping[str, float]) -> str:
+    """'' or words naming a fitted parameter that sits on its bound."""
+    specs = {p.name: p for p in effect.term.params}
+    for full, v in values.items():
+        spec = specs[full.split(".")[-1]]
+        lo, hi = spec.lower, spec.upper
+        span = (hi - lo) if math.isfinite(hi - lo) else max(abs(v), 1.0)
+        for edge in (lo, hi):
+            if math.isfinite(edge) and edge != 0.0 and abs(v - edge) <= 1e-3 * span:
+                return f"{full.split('.')[-1]} = {v:.4g} {spec.unit}, bound {edge:g}"
+    return ""
+
+
+def _lr_threshold(p: float, q: int) -> float:
+    from scipy import stats
+
+    return float(stats.chi2.isf(p, q))
+
+
+def _exposing_finding(before: Sequence[structure.Finding], n_before: int, after: tuple[list, int]):
+    """The significant structure of the previous model that the new effect reduced the most."""
+    sig = structure.significant(list(before), n_before)
+    if not sig:
+        return None
+    post = {(f.group, f.variable, f.test): f for f in after[0]}
+    return max(sig, key=lambda f: f.score - post.get((f.group, f.variable, f.test), f).score)
+
+
+def separating_experiment(a: Effect, b: Effect) -> str:
+    """Words: which experiment would tell effect a from effect b."""
+    if b.name in a.separates:
+        return a.separates[b.name]
+    if a.name in b.separates:
+        return b.separates[a.name]
+    pa, pb = set(a.procedures), set(b.procedures)
+    only_a, only_b = sorted(pa - pb), sorted(pb - pa)
+    if only_a or only_b:
+        return (f"add runs that only one of them affects: {a.name} shows in {', '.join(a.procedures)}, "
+                f"{b.name} in {', '.join(b.procedures)}")
+    return (f"vary what they depend on differently: {a.name} shows against {a.variable}, "
+            f"{b.name} against {b.variable}; extend that range (more levels, both directions, heavier wheels)")

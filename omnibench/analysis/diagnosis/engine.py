@@ -1,0 +1,366 @@
+"""The diagnosis engine: one measurement vector, profile-likelihood fits, screening, held-out errors.
+
+Data. `Problem` wraps the fit engineer's `Predictor`: every observation entry (a steady wheel
+speed, a mean current, a drive speed, a distance, an energy, a step-response speed sample) with
+its metadata (procedure, run, step, wheel, speed, F_N, direction, time, current, duty).
+
+Noise model. Entries fall in groups (procedure/signal; entries without a standard error form
+their own group). Within a group the entry's own standard error sigma_k sets the relative
+weight; each group's scale s_g is unknown and profiled out (estimated from the residuals),
+so a wrongly stated noise level cannot make an effect look significant. The fit minimises the
+profile deviance
+
+    D = sum_g (n_g - 1) log(s_g^2) + RSS_g / s_g^2,   RSS_g = sum_{k in g} ((y_k - f_k(theta)) / sigma_k)^2,
+    s_g^2 = max(RSS_g / n_g, floor_g^2)
+
+by iteratively reweighted least squares (weights 1 / (s_g sigma_k)). The floor (0.5 for stated
+standard errors, 0.1 % of the group's RMS value without) keeps a tiny group that one parameter
+fits exactly from making every later parameter look decisive.
+
+Test. A candidate with q parameters added to the current model is a nested model; the
+likelihood-ratio statistic LR = D_0 - D_1 is chi^2(q) under "the effect is absent" (Wilks). The
+groups' sizes enter with n_g - 1 (a Bartlett-type correction for small groups such as four
+energy runs).
+
+Held-out error. K-fold over whole run steps (step responses: over time blocks of the run):
+the model is refitted without the fold by one Gauss-Newton step from the full-data fit
+(exact for a linear model; the fits here are near-linear at the optimum), and the held-out
+entries are predicted. Reported per procedure as RMS(held-out residual) / RMS(measured),
+the same normalisation as `fitting.error_by_procedure`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, stats
+
+from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
+from omnibench.analysis.observations import Observations
+from omnibench.analysis.predictor import Predictor
+from omnibench.effects.library import Effect
+
+FD_STEP = 1e-4  # forward-difference step, in units of each parameter's scale
+CV_FOLDS = 5
+MIN_SCALE_KNOWN = 0.5  # floor of s_g for groups with stated standard errors
+MIN_SCALE_UNKNOWN = 1e-3  # floor of s_g / RMS(measured) for groups without
+STEP_RESPONSE_BLOCK = 2.0  # s: time blocks of a step-response run used as CV groups
+
+
+@dataclass
+class ModelFit:
+    """A model fitted to a Problem (SI values)."""
+
+    robot: Any
+    free: list[str]
+    values: dict[str, float]
+    se: dict[str, float]
+    f: np.ndarray  # predictions of every entry
+    scale: dict[str, float]  # profiled noise scale s_g per group
+    deviance: float
+    J: np.ndarray  # d prediction / d parameter (n entries x p), unweighted, value units
+    nfev: int = 0
+    converged: bool = True
+
+    def weights(self, problem: "Problem") -> np.ndarray:
+        """1 / (s_g sigma_k) of every entry (0 where unused)."""
+        s = np.array([self.scale.get(g, 1.0) for g in problem.group])
+        w = 1.0 / (s * problem.sigma)
+        return np.where(problem.used, w, 0.0)
+
+    def residual(self, problem: "Problem") -> np.ndarray:
+        """Measured minus predicted, in the entries' units."""
+        return problem.y - self.f
+
+
+class Problem:
+    """The measurement vector of some procedures of `obs` and its model predictions."""
+
+    def __init__(self, obs: Observations, procedures: Sequence[str] | None = None) -> None:
+        self.obs = obs
+        self.pred = Predictor(obs, procedures)
+        self.procedures = self.pred.procedures
+        t = self.pred.table.copy()
+        self.y = self.pred.measured.astype(float)
+        sig = self.pred.sigma.astype(float)
+        known = np.isfinite(sig) & (sig > 0)
+        self.sigma = np.where(known, sig, 1.0)
+        self.used = np.isfinite(self.y)
+        base = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
+        self.group = np.where(known, base, base + "/no-se").astype(object)
+        # CV groups: whole run steps; a step-response run in time blocks
+        step = t["step"].to_numpy()
+        block = np.where(t["procedure"].to_numpy() == "step_response",
+                         np.floor(np.nan_to_num(t["time"].to_numpy(float)) / STEP_RESPONSE_BLOCK), step)
+        t["cv_group"] = t["run"].astype(str) + "#" + pd.Series(block).astype(int).astype(str)
+        self.table = t
+        self.groups = sorted(set(self.group[self.used]))
+        # smallest noise scale a group may take: the stated standard errors may be pessimistic
+        # by 2x at most; a group without them is not trusted below 0.1 % of its own size (four
+        # energy runs fitted "exactly" would otherwise make any later parameter look decisive)
+        self.floor = {}
+        for g in self.groups:
+            m = self.used & (self.group == g)
+            self.floor[g] = (MIN_SCALE_KNOWN if not str(g).endswith("/no-se")
+                             else MIN_SCALE_UNKNOWN * float(np.sqrt(np.mean(self.y[m] ** 2))) or 1e-12)
+        self.nfev = 0
+
+    def __len__(self) -> int:
+        return len(self.y)
+
+    def predict(self, robots: Sequence[Any]) -> np.ndarray:
+        """Predictions (len(robots), n entries)."""
+        self.nfev += len(robots)
+        return self.pred.predict(list(robots))
+
+    # ----------------------------------------------------------------- likelihood pieces
+    def rss(self, f: np.ndarray) -> dict[str, tuple[float, int]]:
+        """Per group: (sum of squared sigma-weighted residuals, count)."""
+        z = (self.y - f) / self.sigma
+        out = {}
+        for g in self.groups:
+            m = self.used & (self.group == g)
+            out[g] = (float(np.sum(z[m] ** 2)), int(m.sum()))
+        return out
+
+    def deviance(self, f: np.ndarray) -> float:
+        """Profile deviance: sum_g (n_g - 1) log(s_g^2) + RSS_g / s_g^2 with s_g the profiled
+        scale (= (n_g - 1) log(RSS_g / n_g) + n_g unless the scale sits at its floor)."""
+        d = 0.0
+        sc = self.scales(f)
+        for g, (rss, n) in self.rss(f).items():
+            if n >= 2:
+                d += (n - 1) * math.log(sc[g] ** 2) + rss / sc[g] ** 2
+        return d
+
+    def scales(self, f: np.ndarray) -> dict[str, float]:
+        """Profiled noise scale per group: sqrt(RSS_g / n_g), not below the group's floor."""
+        out = {}
+        for g, (rss, n) in self.rss(f).items():
+            out[g] = max(math.sqrt(rss / max(n, 1)), self.floor.get(g, 1e-12), 1e-12)
+        return out
+
+
+def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] | None = None) -> Any:
+    """`robot` declaring `effect` (its fitted parameters at `values`, default zero = absent)."""
+    vals = {p: 0.0 for p in effect.fit}
+    vals.update(values or {})
+    effects = {k: dict(v) for k, v in robot.effects.items()}
+    effects[effect.name] = effect.params(vals)
+    return robot.replace(effects=effects)
+
+
+def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: int = 20, passes: int = 3,
+              scale: Mapping[str, float] | None = None) -> ModelFit:
+    """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param).
+
+    `robot` is the start point and holds every fixed parameter."""
+    free = list(free)
+    scl = np.array([param_scale(robot, p) for p in free])
+    lo = np.array([param_bounds(robot, p)[0] for p in free]) / scl
+    hi = np.array([param_bounds(robot, p)[1] for p in free]) / scl
+    x = np.clip(np.array([param_value(robot, p) for p in free]) / scl, lo, hi)
+    used = problem.used
+
+    def at(xv: np.ndarray) -> Any:
+        return with_params(robot, {p: float(v) for p, v in zip(free, xv * scl)})
+
+    f0 = problem.predict([at(x)])[0]
+    s = dict(scale) if scale else problem.scales(f0)
+    nfev = 1
+    converged = True
+    for _ in range(passes):
+        w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
+        cache: dict[bytes, np.ndarray] = {}
+
+        def resid(xv: np.ndarray) -> np.ndarray:
+            key = xv.tobytes()
+            if key not in cache:
+                cache[key] = problem.predict([at(xv)])[0]
+            return ((problem.y - cache[key]) * w)[used]
+
+        def jac(xv: np.ndarray) -> np.ndarray:
+            xs = [xv] + [xv + FD_STEP * np.eye(len(xv))[j] for j in range(len(xv))]
+            F = problem.predict([at(v) for v in xs])
+            cache[xv.tobytes()] = F[0]
+            return -((F[1:] - F[0]) / FD_STEP * w).T[used]
+
+        if free:
+            sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
+                                         x_scale=1.0, ftol=1e-7, xtol=1e-7, gtol=1e-9)
+            x = sol.x
+            converged = converged and sol.status > 0
+            nfev += sol.nfev + sol.njev * (len(free) + 1)
+        f0 = problem.predict([at(x)])[0]
+        s_new = problem.scales(f0)
+        if all(abs(s_new[g] / s.get(g, 1.0) - 1) < 0.02 for g in s_new):
+            s = s_new
+            break
+        s = s_new
+    fitted = at(x)
+    # Jacobian at the solution (value units) and covariance from the profiled weights
+    if free:
+        xs = [x] + [x + FD_STEP * np.eye(len(x))[j] for j in range(len(x))]
+        F = problem.predict([at(v) for v in xs])
+        f0 = F[0]
+        J = ((F[1:] - F[0]) / FD_STEP).T / scl
+    else:
+        J = np.zeros((len(problem), 0))
+    w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
+    Jw = (J * w[:, None])[used]
+    se = {p: float("nan") for p in free}
+    if free:
+        cov = np.linalg.pinv(Jw.T @ Jw)
+        for k, p in enumerate(free):
+            se[p] = float(math.sqrt(max(cov[k, k], 0.0)))
+    return ModelFit(robot=fitted, free=free, values={p: param_value(fitted, p) for p in free}, se=se, f=f0,
+                    scale=s, deviance=problem.deviance(f0), J=J, nfev=nfev, converged=converged)
+
+
+@dataclass
+class Screen:
+    """First-order (score-test) look at every candidate from the current fit."""
+
+    approx_lr: dict[str, float]
+    estimate: dict[str, dict[str, float]]
+
+
+def secant_steps(effect: Effect) -> dict[str, float]:
+    """Size of the step used to probe each fitted parameter (its `start`, else a quarter of the
+    realistic size)."""
+    big = max((abs(v) for v in effect.example.values()), default=1.0) or 1.0
+    return {p: (effect.start.get(p) or 0.25 * big) for p in effect.fit}
+
+
+def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) -> Screen:
+    """Approximate LR of each candidate: the weighted residual projected on the candidate's
+    secant sensitivities, orthogonal to the current model's own parameter directions."""
+    robots = []
+    cols: list[tuple[str, str, float]] = []
+    for eff in candidates:
+        for p, h in secant_steps(eff).items():
+            robots.append(_robot_with_effect(current.robot, eff, {p: h}))
+            cols.append((eff.name, p, h))
+    F = problem.predict(robots) if robots else np.zeros((0, len(problem)))
+    w = current.weights(problem)
+    used = problem.used
+    r = ((problem.y - current.f) * w)[used]
+    Jb = (current.J * w[:, None])[used]
+    # residual and candidate columns with the current model's directions projected out
+    if Jb.shape[1]:
+        Q, _ = np.linalg.qr(Jb)
+        proj = lambda v: v - Q @ (Q.T @ v)  # noqa: E731
+    else:
+        proj = lambda v: v  # noqa: E731
+    r_perp = proj(r)
+    groups = problem.group[used]
+    out, est = {}, {}
+    for eff in candidates:
+        idx = [k for k, c in enumerate(cols) if c[0] == eff.name]
+        A = np.stack([proj(((F[k] - current.f) / cols[k][2] * w)[used]) for k in idx], axis=1)
+        coef, *_ = np.linalg.lstsq(A, r_perp, rcond=None)
+        new = r_perp - A @ coef
+        # change of the profile deviance, group by group (a small group that the candidate
+        # explains entirely counts as much as it would in the exact test)
+        lr = 0.0
+        for g in problem.groups:
+            m = groups == g
+            n = int(m.sum())
+            if n >= 2:
+                lr += (n - 1) * math.log(max(float(r[m] @ r[m]), 1e-300) / max(float(new[m] @ new[m]), 1e-12 * n))
+        out[eff.name] = max(lr, 0.0) if np.any(np.abs(A) > 0) else 0.0
+        est[eff.name] = {cols[k][1]: float(c) for k, c in zip(idx, coef)}
+    return Screen(out, est)
+
+
+def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
+                  *, max_nfev: int = 15) -> ModelFit:
+    """Refit the current model's parameters together with `effect`'s, starting from the screen's
+    estimate (clipped into the parameter bounds) or the effect's `start`."""
+    start = dict(effect.start)
+    if estimate:
+        for p, v in estimate.items():
+            lo, hi = effect.term.params[effect.term.param_names.index(p)].lower, \
+                effect.term.params[effect.term.param_names.index(p)].upper
+            if math.isfinite(v) and lo <= v <= hi and v != 0.0:
+                start[p] = v
+    robot = _robot_with_effect(current.robot, effect, start)
+    free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
+    return fit_model(problem, robot, free, max_nfev=max_nfev, passes=2, scale=current.scale)
+
+
+def lr_test(base: ModelFit, alt: ModelFit, q: int) -> tuple[float, float]:
+    """(LR statistic, p-value) of a nested model with q extra parameters."""
+    lr = max(base.deviance - alt.deviance, 0.0)
+    return lr, float(stats.chi2.sf(lr, q))
+
+
+# ------------------------------------------------------------------------- held-out error
+def cv_folds(problem: Problem, k: int = CV_FOLDS, seed: int = 0) -> np.ndarray:
+    """Fold index (0..k-1) of every entry: whole run steps (step-response time blocks) kept
+    together, assigned at random with every procedure spread over the folds."""
+    fold = np.zeros(len(problem), dtype=int)
+    rng = np.random.default_rng(seed)
+    t = problem.table
+    for proc in t["procedure"].unique():
+        m = (t["procedure"] == proc).to_numpy()
+        groups = sorted(t.loc[m, "cv_group"].unique())
+        order = rng.permutation(len(groups))
+        kk = min(k, len(groups))
+        assign = {groups[i]: n % kk for n, i in enumerate(order)} if kk > 1 else {g: -1 for g in groups}
+        fold[m] = t.loc[m, "cv_group"].map(assign).to_numpy()
+    return fold
+
+
+def heldout_residuals(problem: Problem, fit: ModelFit, folds: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Held-out residual of every entry (units of the entry): the fit without the entry's fold,
+    by one weighted Gauss-Newton step from the full-data fit. NaN where an entry has no fold
+    (a procedure with a single step cannot be held out)."""
+    w = fit.weights(problem) if weights is None else weights
+    r = fit.residual(problem)
+    out = np.full(len(problem), np.nan)
+    used = problem.used
+    for k in sorted(set(folds[used & (folds >= 0)])):
+        tr = used & (folds != k)
+        ho = used & (folds == k)
+        if fit.J.shape[1]:
+            A = fit.J[tr] * w[tr, None]
+            delta, *_ = np.linalg.lstsq(A, r[tr] * w[tr], rcond=None)
+            out[ho] = r[ho] - fit.J[ho] @ delta
+        else:
+            out[ho] = r[ho]
+    return out
+
+
+def error_table(problem: Problem, residual: np.ndarray) -> dict[str, dict[str, Any]]:
+    """Per procedure: nrmse (RMS residual / RMS measured, combined over its signals as an RMS)
+    and per signal the RMS residual in its unit."""
+    t = problem.table
+    out: dict[str, dict[str, Any]] = {}
+    for proc in t["procedure"].unique():
+        sig_rows = {}
+        ratios = []
+        for sig in t.loc[t["procedure"] == proc, "signal"].unique():
+            m = ((t["procedure"] == proc) & (t["signal"] == sig)).to_numpy() & np.isfinite(residual) & problem.used
+            if not m.any():
+                continue
+            rms = float(np.sqrt(np.mean(residual[m] ** 2)))
+            den = float(np.sqrt(np.mean(problem.y[m] ** 2)))
+            unit = str(t.loc[m, "unit"].iloc[0])
+            sig_rows[str(sig)] = {"rms": rms, "unit": unit, "n": int(m.sum())}
+            if den > 0:
+                ratios.append(rms / den)
+        if sig_rows:
+            out[str(proc)] = {"nrmse": float(np.sqrt(np.mean(np.square(ratios)))) if ratios else float("nan"),
+                              "signals": sig_rows}
+    return out
+
+
+def cv_score(problem: Problem, residual: np.ndarray, weights: np.ndarray) -> float:
+    """Held-out weighted sum of squares (common weights for the models compared)."""
+    m = problem.used & np.isfinite(residual)
+    return float(np.sum((residual[m] * weights[m]) ** 2))
