@@ -15,8 +15,10 @@ so the same procedure runs in real time on the robot and faster on the simulator
 Reading is pull-based: bytes are read only inside the client's calls, in the caller's
 thread. While reading, the client sends a PING whenever a quarter of the watchdog timeout
 of board time has passed since it last sent anything; a small background thread does the
-same on the wall clock for the time the caller spends elsewhere. So the board's watchdog
-never trips during a run, and does trip if this process dies or hangs.
+same on the wall clock for the time the caller spends elsewhere, but only while the caller
+has made a client call within the last HANG_S (2 s) or 4 watchdog timeouts. So the board's
+watchdog never trips during a run, and does trip if this process dies or its procedure
+hangs (a procedure reads samples the whole time its motors run).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ READ_TIMEOUT_S = 0.05       #: wall-clock timeout of one blocking port read
 ACK_TIMEOUT_S = 0.3         #: wall-clock wait for an ACK before sending again
 ACK_TIMEOUT_BOARD_S = 0.1   #: ... or this much board time (telemetry keeps arriving)
 RETRIES = 3                 #: extra attempts per command
+HANG_S = 2.0                #: caller silent this long (wall): the heartbeat thread stops covering for it
 STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
 PROBE_S = 0.45              #: probe unanswered for this long: the link is lost
 MODES = ("ground", "upside_down")
@@ -82,6 +85,7 @@ class Board:
         self._last_tx_board = 0.0
         self._last_tx_wall = time.monotonic()
         self._last_rx_wall = time.monotonic()
+        self._last_call_wall = time.monotonic()
         self._telemetry_hz = 0.0
         self._watchdog_s = float(self.spec.board.get("default_watchdog_s", 0.5))
         self._heartbeat_on = heartbeat
@@ -383,6 +387,7 @@ class Board:
                  check_reset: bool = True) -> Message:
         """Send a command, wait for its ACK (resending up to RETRIES times), check status."""
         with self._io:
+            self._last_call_wall = time.monotonic()
             if reply:
                 self._replies.pop(reply, None)
             sent: list[int] = []
@@ -439,6 +444,7 @@ class Board:
         """
         if self._lost_error is not None:
             raise self._lost_error
+        self._last_call_wall = time.monotonic()
         try:
             n = self._port.in_waiting
             data = self._port.read(n) if n else (self._port.read(1) if wait else b"")
@@ -569,7 +575,10 @@ class Board:
     def _heartbeat_loop(self) -> None:
         """Wall-clock heartbeat for when the caller is not reading (real time boards)."""
         while not self._hb_stop.wait(self._heartbeat_interval() / 2):
-            if time.monotonic() - self._last_tx_wall >= self._heartbeat_interval():
+            now = time.monotonic()
+            if now - self._last_call_wall > max(HANG_S, 4 * self._watchdog_s):
+                continue  # the caller hung: let the board's watchdog stop the motors
+            if now - self._last_tx_wall >= self._heartbeat_interval():
                 try:
                     self._send("PING")
                 except (BoardError, UserError):

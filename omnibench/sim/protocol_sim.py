@@ -69,8 +69,7 @@ class Serial(SerialBase):
         self.is_open = True
 
     def close(self) -> None:
-        if self.is_open and self.board is not None:
-            self.board.stop_motors()
+        # Like unplugging a cable: the board keeps its state (its watchdog stops the motors).
         self.is_open = False
         super().close()
 

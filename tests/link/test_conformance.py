@@ -181,4 +181,5 @@ class TestBoardConformance:
                 b.set_duties([0.3] * 4)
                 assert not target.status()["motors_stopped"]
                 raise RuntimeError("procedure failed")
-        assert target.status()["motors_stopped"]
+        st = target.status()
+        assert st["motors_stopped"] and st["last_command"] == "STOP" and st["faults"] == []

@@ -69,3 +69,25 @@ def test_fast_clock_on_pty_loses_nothing(tmp_path) -> None:
             assert all(abs(y.t - x.t - 0.005) < 2e-6 for x, y in zip(s, s[1:]))
     finally:
         served.stop()
+
+
+def test_hung_caller_lets_the_watchdog_stop_the_motors(tmp_path) -> None:
+    """The wall-clock heartbeat covers a busy caller, not a hung one."""
+    import omnibench.link.board as lb
+
+    served = spawn_server(tmp_path, "--seed", "6")
+    old = lb.HANG_S
+    lb.HANG_S = 1.5
+    try:
+        with Board.open(served.path) as b:
+            b.configure(watchdog_s=0.3)
+            b.set_duties([0.2] * 4)
+            time.sleep(0.6)  # busy elsewhere for 2 watchdog timeouts: the heartbeat covers it
+            assert served.status()["motors_stopped"] is False
+            time.sleep(2.5)  # "hung": no client call for longer than HANG_S
+            st = served.status()
+            assert st["motors_stopped"] is True and st["faults"] == ["WATCHDOG"]
+            b.clear_faults()
+    finally:
+        lb.HANG_S = old
+        served.stop()
