@@ -8,7 +8,7 @@ import time
 
 import click
 
-from omnibench.errors import UserError
+from omnibench.errors import BoardError, UserError
 
 PORT_HELP = "Serial port or URL: /dev/ttyACM0, sim://?seed=1, socket://host:port, hwgrep://VID:PID."
 
@@ -20,7 +20,7 @@ def command() -> None:
 
 @command.command(name="info")
 @click.option("--port", required=True, help=PORT_HELP)
-@click.option("--timeout", type=float, default=2.0, show_default=True, help="Handshake timeout, s.")
+@click.option("--timeout", type=float, default=3.0, show_default=True, help="Handshake timeout, s.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def info(port: str, timeout: float, as_json: bool) -> None:
     """Handshake with the board and print its identity, protocol and link round trip."""
@@ -35,7 +35,14 @@ def info(port: str, timeout: float, as_json: bool) -> None:
                    ping_ms=round(1e3 * sorted(rtt)[len(rtt) // 2], 3) if rtt else None)
     if as_json:
         click.echo(json.dumps(out, indent=1))
-        return
+    else:
+        _print_info(out, port)
+    if not out["compatible"]:
+        raise BoardError(f"board on {port} speaks protocol v{out['protocol_version']}, this tool "
+                         f"v{out['host_protocol_version']}: update the firmware or omnibench")
+
+
+def _print_info(out: dict, port: str) -> None:
     click.echo(f"board {out['board_id']} on {port}: firmware {out['firmware_version']}, "
                f"protocol {out['protocol']} v{out['protocol_version']} "
                f"({'compatible' if out['compatible'] else 'INCOMPATIBLE with this tool, v' + str(out['host_protocol_version'])})")

@@ -33,7 +33,6 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
     --ammeter), notes on stderr. On Ctrl-C or SIGTERM the motors are stopped and the
     status file says so.
     """
-    from omnibench.sim.pty_server import run_server
     from omnibench.sim.world import world_from_url
 
     params: dict[str, str] = {"clock": clock}
@@ -49,4 +48,6 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
             raise UserError(f"--set needs KEY=VALUE, got {item!r}")
         params[key.strip()] = value.strip()
     _, world, _ = world_from_url("sim://omnibot?" + urlencode(params))
+    from omnibench.sim.pty_server import run_server  # imports the physics: after checking input
+
     sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr))

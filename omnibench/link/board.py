@@ -99,9 +99,12 @@ class Board:
 
     # ================================================================== opening
     @classmethod
-    def open(cls, url: str, *, timeout: float = 2.0, baudrate: int | None = None,
+    def open(cls, url: str, *, timeout: float = 3.0, baudrate: int | None = None,
              protocol: str = DEFAULT_PROTOCOL, strict: bool = True, heartbeat: bool = True) -> "Board":
         """Open `url` (any pyserial URL), handshake within `timeout` s, stop the motors.
+
+        The default timeout covers boards that reboot when the port opens (Arduino DTR
+        reset, about 2 s to boot).
 
         `baudrate` defaults to the protocol's ([board].baudrate, 115200). With
         `strict` (default) a board speaking another protocol version raises BoardError

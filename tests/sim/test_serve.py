@@ -8,8 +8,18 @@ import sys
 import textwrap
 import time
 
+import pytest
+
 from omnibench.link.board import Board
 from omnibench.sim.testing import spawn_server
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """One realtime server for the tests that leave it with the motors stopped."""
+    s = spawn_server(tmp_path_factory.mktemp("serve"), "--seed", "4", "--ammeter", lines=2)
+    yield s
+    s.stop()
 
 
 def test_sigint_to_server_stops_motors_and_says_so(tmp_path) -> None:
@@ -27,9 +37,8 @@ def test_sigint_to_server_stops_motors_and_says_so(tmp_path) -> None:
         served.stop()
 
 
-def test_interrupted_client_leaves_motors_stopped(tmp_path) -> None:
+def test_interrupted_client_leaves_motors_stopped(served) -> None:
     """Ctrl-C in a procedure: the `with Board.open(...)` exit path sends STOP."""
-    served = spawn_server(tmp_path, "--seed", "4")
     client = textwrap.dedent(f"""
         import sys, time
         from omnibench.link.board import Board
@@ -56,7 +65,6 @@ def test_interrupted_client_leaves_motors_stopped(tmp_path) -> None:
             proc.kill()
         proc.stdout.close()
         proc.stderr.close()
-        served.stop()
 
 
 def test_fast_clock_on_pty_loses_nothing(tmp_path) -> None:
@@ -71,11 +79,10 @@ def test_fast_clock_on_pty_loses_nothing(tmp_path) -> None:
         served.stop()
 
 
-def test_hung_caller_lets_the_watchdog_stop_the_motors(tmp_path) -> None:
+def test_hung_caller_lets_the_watchdog_stop_the_motors(served) -> None:
     """The wall-clock heartbeat covers a busy caller, not a hung one."""
     import omnibench.link.board as lb
 
-    served = spawn_server(tmp_path, "--seed", "6")
     old = lb.HANG_S
     lb.HANG_S = 1.5
     try:
@@ -90,4 +97,18 @@ def test_hung_caller_lets_the_watchdog_stop_the_motors(tmp_path) -> None:
             b.clear_faults()
     finally:
         lb.HANG_S = old
-        served.stop()
+
+
+def test_ammeter_served_on_its_own_pty(served) -> None:
+    from omnibench.link.ammeter import open_ammeter
+
+    assert len(served.lines) == 2
+    with Board.open(served.path) as b, open_ammeter(served.lines[1]) as meter:
+        assert meter.idn.startswith("OMNIBENCH,SIM-AMMETER")
+        b.clear_faults()
+        b.configure(telemetry_hz=100)
+        b.attach_ammeter(meter, period_s=0.05)
+        b.set_duties([0.5] * 4)
+        s = [x for x in b.wait(0.5) if x.ammeter_current == x.ammeter_current]
+        b.stop()
+    assert len(s) >= 5 and max(x.ammeter_current for x in s) > 0.5
