@@ -74,7 +74,10 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     results["host_seconds"] = time.monotonic() - t0
     report = write_report(results, out, robot)
     results["report"] = str(report)
-    (out / "campaign.json").write_text(json.dumps(results, indent=2, default=str) + "\n", encoding="utf-8")
+    from omnibench.runs.store import json_ready
+
+    (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
+                                       encoding="utf-8")
     echo(f"report: {report}")
     return results
 

@@ -22,6 +22,7 @@ Results each step adds to its record (units SI):
 
 from __future__ import annotations
 
+import functools
 import math
 import signal
 from collections.abc import Callable, Sequence
@@ -64,8 +65,6 @@ def steady_state(t: np.ndarray, phi: np.ndarray, *, window: float, confidence: f
           two-reading speed, 2 pi / counts_per_rev / (median dt * sqrt 6),
           relative_tolerance * |mean w|).
     """
-    from scipy import stats
-
     sel = t >= t[-1] - window
     tt, pp = t[sel], phi[sel]
     n = len(tt) - 1
@@ -82,7 +81,7 @@ def steady_state(t: np.ndarray, phi: np.ndarray, *, window: float, confidence: f
     s2 = (resid**2).sum(axis=0) / max(n - 2, 1)
     se = np.sqrt(s2 / sxx)
     t_stat = np.where(se > 0, np.abs(slope) / np.where(se > 0, se, 1.0), np.where(slope == 0, 0.0, np.inf))
-    t_crit = stats.t.ppf(0.5 + confidence / 2.0, max(n - 2, 1))
+    t_crit = _t_crit(confidence, max(n - 2, 1))
     q = 2.0 * math.pi / float(counts_per_rev)
     quant = q / (float(np.median(dt)) * math.sqrt(6.0))
     floor = np.maximum(quant, relative_tolerance * np.abs(w.mean(axis=0)))
@@ -90,6 +89,14 @@ def steady_state(t: np.ndarray, phi: np.ndarray, *, window: float, confidence: f
     slope_ok = (t_stat < t_crit) | (np.abs(slope) * window <= 0.5 * floor)
     std_ok = std <= noise_factor * floor
     return SteadyVerdict(bool(np.all(slope_ok & std_ok)), slope, t_stat, std, floor, n)
+
+
+@functools.lru_cache(maxsize=256)
+def _t_crit(confidence: float, dof: int) -> float:
+    """Two-sided Student-t critical value (cached: evaluated many times per step)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.5 + confidence / 2.0, dof))
 
 
 def angle_slope(t: np.ndarray, phi: np.ndarray) -> np.ndarray:

@@ -83,8 +83,16 @@ def format_plan(plan: Plan, robot: Any) -> list[str]:
     return lines
 
 
+def _num(v: Any) -> Any:
+    """None for missing values (pandas gives NaN for a column a row lacks)."""
+    if isinstance(v, float) and math.isnan(v):
+        return None
+    return v
+
+
 def summarise(procedure: str, records: list[dict[str, Any]]) -> dict[str, Any]:
     """Lab-level results of a run's completed steps (used for the report and --json)."""
+    records = [{k: _num(v) for k, v in r.items()} for r in records]
     out: dict[str, Any] = {}
     if procedure == "upside_down_sweep":
         out["steady_steps"] = sum(1 for r in records if r.get("steady"))

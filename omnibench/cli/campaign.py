@@ -32,4 +32,6 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                        progress=not as_json and sys.stderr.isatty())
     if as_json:
-        click.echo(json.dumps(res, indent=2, default=str))
+        from omnibench.runs.store import json_ready
+
+        click.echo(json.dumps(json_ready(res), indent=2, default=str))

@@ -66,7 +66,9 @@ def _make(name: str) -> click.Command:
             ammeter=ammeter,
         )
         if as_json:
-            click.echo(json.dumps(result, indent=2, default=str))
+            from omnibench.runs.store import json_ready
+
+            click.echo(json.dumps(json_ready(result), indent=2, default=str))
 
     return cmd
 

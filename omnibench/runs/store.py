@@ -86,6 +86,11 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
+def json_ready(obj: Any) -> Any:
+    """`obj` with numpy values as Python ones and NaN/inf as None (standard JSON)."""
+    return _clean(obj)
+
+
 def dumps(obj: Any) -> str:
     """One-line standard JSON (no NaN)."""
     return json.dumps(_clean(obj), default=_json_default, allow_nan=False)
