@@ -263,6 +263,9 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     except KeyboardInterrupt:
         status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
         raise
+    except click.exceptions.Abort:
+        status, reason = "aborted", "the operator declined an action (or the input ended)"
+        raise
     except UserError as exc:
         status, reason = "failed", str(exc)
         raise

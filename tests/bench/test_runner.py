@@ -129,3 +129,30 @@ def test_ctrl_c_stops_motors_and_resume_completes_without_duplicates(tmp_path, i
     assert list(run.steps["step"][: len(done_before)]) == done_before
     assert len(run.samples) > n_before
     assert [s["status"] for s in run.metadata["segments"]] == ["aborted", "complete"]
+
+
+def test_operator_declining_an_action_aborts_the_run_with_motors_stopped(tmp_path, monkeypatch):
+    import click
+
+    from omnibench.bench.session import _run_on_board as run_on_board
+
+    class Declines:
+        source = "console"
+
+        def perform(self, action, step):
+            raise click.exceptions.Abort()
+
+    robot, text, name = load_robot_file(None)
+    plan = load_plan(HERE / "procedures" / SMALL["upside_down_sweep"], robot)
+    board = FakeBoard()
+    import omnibench.bench.session as session
+
+    monkeypatch.setattr(session, "_choose_operator", lambda *a, **k: Declines())
+    with pytest.raises(click.exceptions.Abort):
+        run_on_board("upside_down_sweep", plan, robot, text, name, board, port="fake://", out=tmp_path,
+                     resume=None, answer_op=None, echo=lambda line: None, progress=False,
+                     measurement_noise=None)
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    run = read_run(run_dir)
+    assert run.status == "aborted" and "declined" in run.metadata["reason"]
+    assert board.stops >= 1 and not board.duties.any()
