@@ -96,6 +96,12 @@ class Board:
         self._closed = False
         self._hb_stop = threading.Event()
         self._hb_thread: threading.Thread | None = None
+        self._strict = True                 # open(strict=...): refuse another protocol version
+        self._faults_seen = 0               # fault bits of the latest sample
+        self._bad_frames = 0                # valid CRC but unknown id or wrong length
+        self._foreign_version: int | None = None  # from a HELLO whose layout is not ours
+        self._reset_reported = False
+        self._reset_message = ""
 
     # ================================================================== opening
     @classmethod
@@ -141,6 +147,8 @@ class Board:
             ack_ok = ack_ok or seq in self._acks
             if hello is not None and ack_ok:
                 break
+        if hello is None and self._foreign_version is not None:
+            raise BoardError(self._mismatch_message(self._foreign_version))
         if hello is None:
             raise BoardError(
                 f"no HELLO from a board on {self.url} within {timeout:g} s: check the port, the baud rate "
@@ -158,11 +166,12 @@ class Board:
         self._command("CONFIGURE", {"watchdog": self._watchdog_s, "telemetry_rate": 0})
         self._start_heartbeat()
 
-    _strict = True  # set by open(): refuse a board speaking another protocol version
-
     def _strict_fail_message(self) -> str:
         assert self.hello is not None
-        return (f"board on {self.url} speaks {self.spec.name} protocol v{self.hello.protocol_version}, "
+        return self._mismatch_message(self.hello.protocol_version)
+
+    def _mismatch_message(self, version: int) -> str:
+        return (f"board on {self.url} speaks {self.spec.name} protocol v{version}, "
                 f"this tool speaks v{self.spec.version}: update the firmware or omnibench "
                 "(motors not driven)")
 
@@ -431,8 +440,6 @@ class Board:
     def _last_faults(self) -> int:
         return self._queue[-1].faults if self._queue else self._faults_seen
 
-    _faults_seen = 0
-
     def _lost(self, why: str) -> BoardError:
         if self._lost_error is None:
             self._lost_error = BoardError(f"lost the board on {self.url}: {why} (check the cable and the "
@@ -470,15 +477,16 @@ class Board:
         self._heartbeat_board_time()
         return frames
 
-    _bad_frames = 0
-    _reset_reported = False
-    _reset_message = ""
-
     def _dispatch(self, body: bytes) -> None:
         try:
             msg = self.codec.decode(body)
         except FrameError:
             self._bad_frames += 1
+            # HELLO keeps its id and protocol_version (u16, first payload field) in every
+            # version, so a board with another layout is still recognised as such.
+            hello_id = self.spec.message("HELLO").id
+            if len(body) >= 5 and body[0] == hello_id:
+                self._foreign_version = int.from_bytes(body[3:5], "little")
             return
         self.stats.frames += 1
         self._track_seq(msg)

@@ -320,7 +320,13 @@ class SimBoard:
         }
 
     def encode_tx(self, name: str, raw: dict[str, Any]) -> bytes:
-        """Clean wire bytes of the board's next frame (uses and advances `tx_seq`)."""
+        """Clean wire bytes of the board's next frame (uses and advances `tx_seq`).
+
+        Fields the description has but this simulator does not model are sent as 0, so a
+        description with extra fields still works unchanged."""
+        m = self.spec.message(name)
+        if any(f.name not in raw for f in m.fields):
+            raw = {f.name: raw.get(f.name, [0] * f.count if f.count > 1 else 0) for f in m.fields}
         wire = self.codec.frame_raw(name, self.tx_seq, raw)
         self.tx_seq = (self.tx_seq + 1) & 0xFFFF
         return wire

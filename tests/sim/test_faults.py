@@ -166,3 +166,17 @@ def test_commands_survive_lost_frames_by_retrying() -> None:
         for _ in range(40):
             b.ping()
         assert b.stats.retries > 0
+
+
+def test_board_with_another_layout_is_recognised_as_another_version(tmp_path) -> None:
+    """A v9 firmware whose HELLO is longer than ours: the host still names the version."""
+    from omnibench.link.spec import load_protocol
+
+    text = load_protocol().path.read_text()
+    text = text.replace("version = 1\n", "version = 9\n", 1).replace(
+        '{ name = "capabilities", type = "u8", flags = "capabilities" },',
+        '{ name = "capabilities", type = "u8", flags = "capabilities" },\n  { name = "serial", type = "u32" },')
+    v9 = tmp_path / "omnibot-board-v9.toml"
+    v9.write_text(text)
+    with pytest.raises(BoardError, match=r"v9.*this tool speaks v1.*motors not driven"):
+        Board.open(f"sim://?protocol={v9}", timeout=1.0)
