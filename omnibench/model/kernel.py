@@ -21,6 +21,7 @@ State vector X (per trajectory), all SI:
 from __future__ import annotations
 
 import hashlib
+import re
 import importlib.util
 import inspect
 import os
@@ -55,238 +56,324 @@ def _hook_import(fn) -> tuple[str, str]:
     return py.__module__, py.__name__
 
 
+def alias_name(k: int, hook: str) -> str:
+    """Name of term k's hook in the generated module."""
+    return f"h{k}_{hook}"
+
+
+def _zero(name: str, n: int, indent: str) -> str:
+    return "\n".join(f"{indent}{name}[{j}] = 0.0" for j in range(n))
+
+
 def _source(lay: Layout) -> str:
-    """Python source of the kernel module for this layout."""
-    rv = {k: v for k, v in RV.items()}
+    """Python source of the kernel module for this layout.
+
+    Speed (the batch fits run this loop ~1e8 times): the derivative is written straight into
+    the stage loop of `_trajectory` and every hook is re-compiled with numba
+    `inline="always"`, so a derivative evaluation makes no function call and touches no
+    reference count. Every array a hook receives (its parameters, its states, phi, the zeroed
+    `out`) is a per-trajectory scratch array made once before the time loop, never a slice
+    made per call; nothing is allocated inside the time loop. The hooks keep the signatures
+    documented in `omnibench.model.terms`.
+    """
+    rv = dict(RV)
+    C = context
+    nt = len(lay.terms)
     imports: list[str] = []
+    rejit: list[str] = []
     calls: dict[str, list[str]] = {h: [] for h in HOOKS}
+    nx = NX_FIXED + nt + lay.n_states
+    # every per-trajectory array is a view at a constant offset of one scratch buffer
+    slots: list[tuple[str, int, str]] = [
+        ("X", nx, ""), ("Xt", nx, ""), ("dX", nx, ""), ("acc", nx, ""), ("aux", NAUX, ""),
+        ("rv", len(RV_NAMES), ""), ("EN", nt, ""), ("Rm", 12, ".reshape((4, 3))"),
+        ("Sm", 12, ".reshape((4, 3))"), ("Minv", 9, ".reshape((3, 3))"), ("Mb", 9, ".reshape((3, 3))"),
+        ("ctx", C.CTX_SIZE, ""), ("elec", C.ELEC_SIZE, ""), ("FN", 4, ""), ("u", 4, ""), ("phi", 4, ""),
+        ("phid", 4, ""), ("sig", 4, ""), ("tau", 4, ""), ("fr", 4, ""), ("cur", 4, ""), ("tmp", 4, ""),
+        ("q", 3, ""), ("v", 3, ""), ("fb", 3, ""), ("tmp3", 3, ""), ("xs_none", 0, ""),
+    ]
+    p_fill: list[str] = []
+    s_load: list[str] = []
+    s_store: list[str] = []
+    I = "    "  # one indent level of the derivative body (re-indented below)
     for k, term in enumerate(lay.terms):
         p0, p1 = lay.param_offset[k], lay.param_offset[k] + len(term.params)
-        s0 = NX_FIXED + len(lay.terms) + lay.state_offset[k]
-        s1 = s0 + term.n_states
+        s0 = NX_FIXED + nt + lay.state_offset[k]
+        ns = term.n_states
+        p = f"p{k}"
+        slots.append((p, p1 - p0, ""))
+        p_fill.append(f"{p}[:] = P[b, {p0}:{p1}]")
+        e = f"EN[{k}] != 0.0"
         for hook, fn in term.hooks.items():
             mod, name = _hook_import(fn)
-            alias = f"h{k}_{hook}"
-            imports.append(f"from {mod} import {name} as {alias}")
-            p = f"P[{p0}:{p1}]"
-            xs = f"X[{s0}:{s1}]"
-            e = f"EN[{k}] != 0.0"
+            alias = alias_name(k, hook)
+            imports.append(f"from {mod} import {name} as _{alias}")
+            rejit.append(f'{alias} = njit(inline="always", error_model="numpy")(_{alias}.py_func)')
+        xs = f"xs{k}" if ns else "xs_none"
+        if ns:
+            dxs = f"dxs{k}"
+            slots += [(xs, ns, ""), (dxs, ns, "")]
+            s_load += [f"{xs}[{i}] = Y[{s0 + i}]" for i in range(ns)]
+            if "state_derivative" in term.hooks:
+                s_store.append(
+                    f"if {e}:\n{_zero(dxs, ns, I)}\n"
+                    f"{I}{alias_name(k, 'state_derivative')}({dxs}, {xs}, cur, phid, elec, ctx, {p})\n"
+                    + "\n".join(f"{I}dX[{s0 + i}] = {dxs}[{i}]" for i in range(ns))
+                    + f"\nelse:\n" + "\n".join(f"{I}dX[{s0 + i}] = 0.0" for i in range(ns))
+                )
+            else:
+                s_store.append("\n".join(f"dX[{s0 + i}] = 0.0" for i in range(ns)))
+        for hook in term.hooks:
+            alias = alias_name(k, hook)
             if hook == "normal_force":
-                calls[hook].append(f"    if {e}:\n        {alias}(FN, ctx, {p})")
+                calls[hook].append(f"if {e}:\n{I}{alias}(FN, ctx, {p})")
             elif hook == "duty":
-                calls[hook].append(f"    if {e}:\n        {alias}(u, ctx, {p})")
+                calls[hook].append(f"if {e}:\n{I}{alias}(u, ctx, {p})")
             elif hook == "electrical":
-                calls[hook].append(f"    if {e}:\n        {alias}(elec, {xs}, ctx, {p})")
-            elif hook == "wheel_torque":
+                calls[hook].append(f"if {e}:\n{I}{alias}(elec, {xs}, ctx, {p})")
+            elif hook in ("wheel_torque", "roller_force", "body_force"):
+                n, out, speed, total, cond, args = {
+                    "wheel_torque": (4, "tmp", "phid", "tau", e, f"tmp, phi, phid, FN, cur, {xs}, ctx, {p}"),
+                    "roller_force": (4, "tmp", "sig", "fr", f"{e} and ground", f"tmp, sig, FN, ctx, {p}"),
+                    "body_force": (3, "tmp3", "v", "fb", f"{e} and ground", f"tmp3, q, v, ctx, {p}"),
+                }[hook]
                 calls[hook].append(
-                    f"    if {e}:\n        tmp[:] = 0.0\n        {alias}(tmp, X[6:10], phid, FN, cur, {xs}, ctx, {p})\n"
-                    f"        pw = 0.0\n        for j in range(4):\n            tau[j] += tmp[j]\n            pw += tmp[j] * phid[j]\n"
-                    f"        dX[{NX_FIXED + k}] -= pw"
+                    f"if {cond}:\n{_zero(out, n, I)}\n{I}{alias}({args})\n{I}pw = 0.0\n"
+                    f"{I}for j in range({n}):\n{I}{I}{total}[j] += {out}[j]\n{I}{I}pw += {out}[j] * {speed}[j]\n"
+                    f"{I}dX[{NX_FIXED + k}] -= pw"
                 )
-            elif hook == "roller_force":
-                calls[hook].append(
-                    f"    if {e} and ground:\n        tmp[:] = 0.0\n        {alias}(tmp, sig, FN, ctx, {p})\n"
-                    f"        pw = 0.0\n        for j in range(4):\n            fr[j] += tmp[j]\n            pw += tmp[j] * sig[j]\n"
-                    f"        dX[{NX_FIXED + k}] -= pw"
-                )
-            elif hook == "body_force":
-                calls[hook].append(
-                    f"    if {e} and ground:\n        tmp3[:] = 0.0\n        {alias}(tmp3, X[0:3], X[3:6], ctx, {p})\n"
-                    f"        pw = 0.0\n        for j in range(3):\n            fb[j] += tmp3[j]\n            pw += tmp3[j] * X[3 + j]\n"
-                    f"        dX[{NX_FIXED + k}] -= pw"
-                )
-            elif hook == "state_derivative":
-                calls[hook].append(
-                    f"    if {e}:\n        {alias}(dX[{s0}:{s1}], {xs}, cur, phid, elec, ctx, {p})"
-                )
-    body = {h: ("\n".join(c) if c else "    pass") for h, c in calls.items()}
-    C = context
-    return f'''# Generated by omnibench.model.kernel from the registered terms. Do not edit.
-import math
-import numpy as np
-from numba import njit, prange
-{chr(10).join(sorted(set(imports)))}
-
-NX = {NX_FIXED + len(lay.terms) + lay.n_states}
-NT = {len(lay.terms)}
-
-
-@njit(cache=True)
-def deriv(X, dX, aux, ucmd, t, rv, P, EN, Rm, Sm, Minv, ctx, S4, S3, elec):
-    FN = S4[0]
-    u = S4[1]
-    phid = S4[2]
-    sig = S4[3]
-    tau = S4[4]
-    fr = S4[5]
-    tmp = S4[6]
-    cur = S4[7]
-    fb = S3[0]
-    tmp3 = S3[1]
-    dX[:] = 0.0
-    ground = rv[{rv["mode"]}] == {C.MODE_GROUND}
-    ctx[{C.CTX_T}] = t
-    ctx[{C.CTX_PSI}] = X[2]
-    # wheel speeds and roller slip speeds
-    for j in range(4):
-        if ground:
-            phid[j] = Rm[j, 0] * X[3] + Rm[j, 1] * X[4] + Rm[j, 2] * X[5]
-            sig[j] = Sm[j, 0] * X[3] + Sm[j, 1] * X[4] + Sm[j, 2] * X[5]
-        else:
-            phid[j] = X[10 + j]
-            sig[j] = 0.0
-        FN[j] = rv[{rv["FN1"]} + j]
-        u[j] = ucmd[j]
-        tau[j] = 0.0
-        fr[j] = 0.0
-    for j in range(3):
-        fb[j] = 0.0
-    # normal forces
+    body = {h: "\n".join(c) for h, c in calls.items()}
+    zero_terms = "\n".join(f"dX[{NX_FIXED + k}] = 0.0" for k in range(nt))
+    deriv = f"""\
+# ---- derivative dX = f(Y, ucmd, ts); aux gets the auxiliary signals ----
+ground = rv[{rv["mode"]}] == {C.MODE_GROUND}
+ctx[{C.CTX_T}] = ts
+ctx[{C.CTX_PSI}] = Y[2]
+for j in range(3):
+    q[j] = Y[j]
+    v[j] = Y[3 + j]
+    fb[j] = 0.0
+# wheel angles and speeds, roller slip speeds
+for j in range(4):
+    phi[j] = Y[6 + j]
+    if ground:
+        phid[j] = Rm[j, 0] * Y[3] + Rm[j, 1] * Y[4] + Rm[j, 2] * Y[5]
+        sig[j] = Sm[j, 0] * Y[3] + Sm[j, 1] * Y[4] + Sm[j, 2] * Y[5]
+    else:
+        phid[j] = Y[10 + j]
+        sig[j] = 0.0
+    FN[j] = rv[{rv["FN1"]} + j]
+    u[j] = ucmd[j]
+    fr[j] = 0.0
+{chr(10).join(s_load)}
+{zero_terms}
+# normal forces
 {body["normal_force"]}
-    # duty map
+# duty map
 {body["duty"]}
-    for j in range(4):
-        u[j] = min(1.0, max(-1.0, u[j]))
-    # electrical slots, then motor currents and battery voltage (closed form with R_batt)
-    elec[{C.ELEC_R_BATT}] = 0.0
-    elec[{C.ELEC_I_Q}] = rv[{rv["I_0"]}]
-    for j in range(4):
-        elec[{C.ELEC_RA_SCALE} + j] = 1.0
+for j in range(4):
+    u[j] = min(1.0, max(-1.0, u[j]))
+# electrical slots, then motor currents and battery voltage (closed form with R_batt)
+elec[{C.ELEC_R_BATT}] = 0.0
+elec[{C.ELEC_I_Q}] = rv[{rv["I_0"]}]
+for j in range(4):
+    elec[{C.ELEC_RA_SCALE} + j] = 1.0
 {body["electrical"]}
-    k_e = rv[{rv["k_e"]}]
-    k_t = rv[{rv["k_t"]}]
-    eta = rv[{rv["eta"]}]
-    R_a = rv[{rv["R_a"]}]
-    R_b = elec[{C.ELEC_R_BATT}]
-    I_q = elec[{C.ELEC_I_Q}]
-    num = rv[{rv["V_batt"]}] - R_b * I_q
+R_b = elec[{C.ELEC_R_BATT}]
+I_q = elec[{C.ELEC_I_Q}]
+if R_b == 0.0:
+    V = V_oc
+else:
+    num = V_oc - R_b * I_q
     den = 1.0
     for j in range(4):
         Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
         num += R_b * u[j] * k_e * phid[j] / Rj
         den += R_b * u[j] * u[j] / Rj
     V = num / den
-    I_batt = I_q
-    copper = 0.0
-    conv = 0.0
-    for j in range(4):
-        Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
-        cur[j] = (u[j] * V - k_e * phid[j]) / Rj
-        I_batt += u[j] * cur[j]
-        copper += cur[j] * cur[j] * Rj
-        conv += (k_e - eta * k_t) * cur[j] * phid[j]
-        tau[j] = eta * k_t * cur[j]
-    dX[{X_E_BATT}] = V * I_batt
-    dX[{X_E_COPPER}] = copper
-    dX[{X_E_CONV}] = conv
-    dX[{X_E_QUIESCENT}] = V * I_q
-    # wheel-axle torques
+I_batt = I_q
+copper = 0.0
+conv = 0.0
+for j in range(4):
+    Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
+    cur[j] = (u[j] * V - k_e * phid[j]) / Rj
+    I_batt += u[j] * cur[j]
+    copper += cur[j] * cur[j] * Rj
+    conv += (k_e - eta * k_t) * cur[j] * phid[j]
+    tau[j] = eta * k_t * cur[j]
+dX[{X_E_BATT}] = V * I_batt
+dX[{X_E_COPPER}] = copper
+dX[{X_E_CONV}] = conv
+dX[{X_E_QUIESCENT}] = V * I_q
+# wheel-axle torques
 {body["wheel_torque"]}
-    # roller-axis forces
+# roller-axis forces
 {body["roller_force"]}
-    # body forces
+# body forces
 {body["body_force"]}
-    # term states
-{body["state_derivative"]}
-    # mechanics
-    if ground:
-        m = rv[{rv["mass"]}]
-        g0 = fb[0] + m * X[5] * X[4]
-        g1 = fb[1] - m * X[5] * X[3]
-        g2 = fb[2]
-        for j in range(4):
-            g0 += Rm[j, 0] * tau[j] + Sm[j, 0] * fr[j]
-            g1 += Rm[j, 1] * tau[j] + Sm[j, 1] * fr[j]
-            g2 += Rm[j, 2] * tau[j] + Sm[j, 2] * fr[j]
-        for i in range(3):
-            dX[3 + i] = Minv[i, 0] * g0 + Minv[i, 1] * g1 + Minv[i, 2] * g2
-        c = math.cos(X[2])
-        s = math.sin(X[2])
-        dX[0] = c * X[3] - s * X[4]
-        dX[1] = s * X[3] + c * X[4]
-        dX[2] = X[5]
-        for j in range(4):
-            dX[6 + j] = phid[j]
-    else:
-        I_w = rv[{rv["I_w"]}]
-        for j in range(4):
-            dX[6 + j] = phid[j]
-            dX[10 + j] = tau[j] / I_w
-    # auxiliary signals
+# term states
+{chr(10).join(s_store)}
+# mechanics
+if ground:
+    g0 = fb[0] + mass * Y[5] * Y[4]
+    g1 = fb[1] - mass * Y[5] * Y[3]
+    g2 = fb[2]
     for j in range(4):
-        aux[j] = cur[j]
-        aux[6 + j] = u[j]
-        aux[10 + j] = FN[j]
-    aux[4] = V
-    aux[5] = I_batt
+        g0 += Rm[j, 0] * tau[j] + Sm[j, 0] * fr[j]
+        g1 += Rm[j, 1] * tau[j] + Sm[j, 1] * fr[j]
+        g2 += Rm[j, 2] * tau[j] + Sm[j, 2] * fr[j]
+    for j in range(3):
+        dX[3 + j] = Minv[j, 0] * g0 + Minv[j, 1] * g1 + Minv[j, 2] * g2
+    cpsi = math.cos(Y[2])
+    spsi = math.sin(Y[2])
+    dX[0] = cpsi * Y[3] - spsi * Y[4]
+    dX[1] = spsi * Y[3] + cpsi * Y[4]
+    dX[2] = Y[5]
+    for j in range(4):
+        dX[6 + j] = phid[j]
+        dX[10 + j] = 0.0
+else:
+    for j in range(6):
+        dX[j] = 0.0
+    for j in range(4):
+        dX[6 + j] = phid[j]
+        dX[10 + j] = tau[j] / I_w
+# auxiliary signals
+for j in range(4):
+    aux[j] = cur[j]
+    aux[6 + j] = u[j]
+    aux[10 + j] = FN[j]
+aux[4] = V
+aux[5] = I_batt
+# ---- end of derivative ----"""
+    deriv = "\n".join(line for line in deriv.splitlines() if line.strip())
+    deriv = re.sub(r"\bY\[", "Xt[", deriv)  # the stage state is always in Xt
+
+    views = ["# one scratch buffer, every array a view at a constant offset: LLVM can prove they",
+             "# never overlap, keeps values in registers and vectorises the hooks' 4-wheel loops"]
+    views.append(f"SB = np.zeros({sum(n for _, n, _ in slots)})")
+    off = 0
+    for name, n, shape in slots:
+        views.append(f"{name} = SB[{off}:{off + n}]{shape}")
+        off += n
+
+    def indent(text: str, n: int) -> str:
+        return "\n".join(" " * n + line for line in text.splitlines() if line.strip())
+
+    return f'''# Generated by omnibench.model.kernel from the registered terms. Do not edit.
+import math
+import numpy as np
+from numba import njit, prange
+{chr(10).join(sorted(set(imports)))}
+
+# every hook is inlined at numba IR level into the derivative (no calls, no reference counts)
+{chr(10).join(rejit)}
+
+NX = {NX_FIXED + nt + lay.n_states}
+NT = {nt}
+
+
+@njit(cache=True, error_model="numpy")
+def _trajectory(b, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF):
+    """Integrate trajectory b (Heun or classical RK4) with the derivative written in place."""
+    n_steps = cmd_idx.shape[0]
+    nx = NX
+{indent(chr(10).join(views), 4)}
+    X[:] = X0[b]
+    rv[:] = RV[b]
+    EN[:] = EN_[b]
+    Rm[:, :] = Rm_[b]
+    Sm[:, :] = Sm_[b]
+    Minv[:, :] = Minv_[b]
+    Mb[:, :] = M[b]
+{indent(chr(10).join(p_fill), 4)}
+    ctx[{C.CTX_MODE}] = rv[{rv["mode"]}]
+    ctx[{C.CTX_W}] = rv[{rv["W"]}]
+    ctx[{C.CTX_MASS}] = rv[{rv["mass"]}]
+    ctx[{C.CTX_L}] = rv[{rv["L"]}]
+    ctx[{C.CTX_LW}] = rv[{rv["l"]}]
+    ctx[{C.CTX_R}] = rv[{rv["r"]}]
+    ctx[{C.CTX_G}] = {C.GRAVITY}
+    ctx[{C.CTX_SIGN_PHI}] = rv[{rv["sign_width_phi"]}]
+    ctx[{C.CTX_SIGN_SIGMA}] = rv[{rv["sign_width_sigma"]}]
+    ctx[{C.CTX_V_NOMINAL}] = rv[{rv["V_batt"]}]
+    k_e = rv[{rv["k_e"]}]
+    k_t = rv[{rv["k_t"]}]
+    eta = rv[{rv["eta"]}]
+    R_a = rv[{rv["R_a"]}]
+    V_oc = rv[{rv["V_batt"]}]
+    mass = rv[{rv["mass"]}]
+    I_w = rv[{rv["I_w"]}]
+    ub = U[b] if U.shape[0] > 1 else U[0]
+    substeps = SUB[b] if SUB.shape[0] > 1 else SUB[0]
+    rk4 = method == {METHOD_RK4}
+    n_stages = 4 if rk4 else 2
+    h = dt / substeps
+    r = 0
+    # the extra pass n == n_steps only evaluates the final state, for the last record
+    for n in range(n_steps + 1):
+        if n == n_steps:
+            if not (n_steps % rec_every == 0 and r < REC.shape[1]):
+                break
+            ucmd = ub[cmd_idx[n_steps - 1]]
+            n_sub = 1
+        else:
+            ucmd = ub[cmd_idx[n]]
+            n_sub = substeps
+        for sub in range(n_sub):
+            t = t0 + n * dt + sub * h
+            for stage in range(n_stages):
+                if stage == 0:
+                    ts = t
+                    for i in range(NX):
+                        Xt[i] = X[i]
+                elif rk4 and stage < 3:
+                    ts = t + 0.5 * h
+                else:
+                    ts = t + h
+{indent(deriv, 16)}
+                if stage == 0:
+                    if sub == 0 and n % rec_every == 0:
+                        _record(REC, b, r, X, aux, Mb, rv)
+                        r += 1
+                    if n == n_steps:
+                        break
+                    if rk4:
+                        for i in range(nx):
+                            acc[i] = dX[i]
+                            Xt[i] = X[i] + 0.5 * h * dX[i]
+                    else:
+                        for i in range(nx):
+                            acc[i] = dX[i]
+                            Xt[i] = X[i] + h * dX[i]
+                elif rk4:
+                    if stage == 1:
+                        for i in range(nx):
+                            acc[i] = acc[i] + 2.0 * dX[i]
+                            Xt[i] = X[i] + 0.5 * h * dX[i]
+                    elif stage == 2:
+                        for i in range(nx):
+                            acc[i] = acc[i] + 2.0 * dX[i]
+                            Xt[i] = X[i] + h * dX[i]
+                    else:
+                        for i in range(nx):
+                            X[i] += h / 6.0 * (acc[i] + dX[i])
+                else:
+                    for i in range(nx):
+                        X[i] += 0.5 * h * (acc[i] + dX[i])
+    for i in range(nx):
+        XF[b, i] = X[i]
 
 
 @njit(cache=True, parallel=True)
-def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, substeps, method, rec_every, REC):
-    """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps."""
+def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
+    """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps.
+
+    SUB: sub-steps per physics step, one per trajectory (or a single value for all)."""
     B = X0.shape[0]
-    n_steps = cmd_idx.shape[0]
-    nx = X0.shape[1]
-    naux = {NAUX}
     XF = np.empty_like(X0)
     for b in prange(B):
-        X = X0[b].copy()
-        Xt = np.empty(nx)
-        k1 = np.empty(nx)
-        k2 = np.empty(nx)
-        k3 = np.empty(nx)
-        k4 = np.empty(nx)
-        aux = np.zeros(naux)
-        auxt = np.zeros(naux)
-        S4 = np.zeros((8, 4))
-        S3 = np.zeros((2, 3))
-        elec = np.zeros({C.ELEC_SIZE})
-        ctx = np.zeros({C.CTX_SIZE})
-        rv = RV[b]
-        ctx[{C.CTX_MODE}] = rv[{rv["mode"]}]
-        ctx[{C.CTX_W}] = rv[{rv["W"]}]
-        ctx[{C.CTX_MASS}] = rv[{rv["mass"]}]
-        ctx[{C.CTX_L}] = rv[{rv["L"]}]
-        ctx[{C.CTX_LW}] = rv[{rv["l"]}]
-        ctx[{C.CTX_R}] = rv[{rv["r"]}]
-        ctx[{C.CTX_G}] = {C.GRAVITY}
-        ctx[{C.CTX_SIGN_PHI}] = rv[{rv["sign_width_phi"]}]
-        ctx[{C.CTX_SIGN_SIGMA}] = rv[{rv["sign_width_sigma"]}]
-        ctx[{C.CTX_V_NOMINAL}] = rv[{rv["V_batt"]}]
-        ub = U[b] if U.shape[0] > 1 else U[0]
-        h = dt / substeps
-        r = 0
-        for n in range(n_steps):
-            ucmd = ub[cmd_idx[n]]
-            for sub in range(substeps):
-                t = t0 + n * dt + sub * h
-                deriv(X, k1, aux, ucmd, t, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-                if sub == 0 and n % rec_every == 0:
-                    _record(REC, b, r, X, aux, M[b], rv)
-                    r += 1
-                if method == {METHOD_RK4}:
-                    for i in range(nx):
-                        Xt[i] = X[i] + 0.5 * h * k1[i]
-                    deriv(Xt, k2, auxt, ucmd, t + 0.5 * h, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-                    for i in range(nx):
-                        Xt[i] = X[i] + 0.5 * h * k2[i]
-                    deriv(Xt, k3, auxt, ucmd, t + 0.5 * h, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-                    for i in range(nx):
-                        Xt[i] = X[i] + h * k3[i]
-                    deriv(Xt, k4, auxt, ucmd, t + h, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-                    for i in range(nx):
-                        X[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-                else:
-                    for i in range(nx):
-                        Xt[i] = X[i] + h * k1[i]
-                    deriv(Xt, k2, auxt, ucmd, t + h, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-                    for i in range(nx):
-                        X[i] += 0.5 * h * (k1[i] + k2[i])
-        if n_steps % rec_every == 0 and r < REC.shape[1]:
-            ulast = ub[cmd_idx[n_steps - 1]]
-            deriv(X, k1, aux, ulast, t0 + n_steps * dt, rv, P[b], EN[b], Rm[b], Sm[b], Minv[b], ctx, S4, S3, elec)
-            _record(REC, b, r, X, aux, M[b], rv)
-        XF[b] = X
+        _trajectory(b, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
     return XF
 
 
@@ -334,14 +421,33 @@ def _cache_dir() -> Path:
 def load_kernel(lay: Layout | None = None):
     """The compiled kernel module for the current registry (generated and cached on disk)."""
     lay = lay or layout()
+    last = _LAST.get("kernel")
+    if last is not None and last[0] is lay:
+        return last[1]  # same registry as last call: skip regenerating and hashing the source
+    module = _load(lay)
+    _LAST["kernel"] = (lay, module)
+    return module
+
+
+_LAST: dict[str, tuple[Layout, object]] = {}
+
+
+def _load(lay: Layout):
     src = _source(lay)
     digest = hashlib.sha256(src.encode())
     digest.update(inspect.getsource(sys.modules[__name__]).encode())
+    # numba's cache of the generated module does not see changes in the code it imports, so
+    # the key covers the whole source of every module a hook comes from (helpers included)
+    modules = {"omnibench.model.smooth", "omnibench.model.context"}
     for term in lay.terms:
         for fn in term.hooks.values():
+            modules.add(getattr(fn, "py_func", fn).__module__)
             digest.update(inspect.getsource(getattr(fn, "py_func", fn)).encode())
-    for mod in ("omnibench.model.smooth", "omnibench.model.context"):
-        digest.update(inspect.getsource(sys.modules[mod]).encode() if mod in sys.modules else mod.encode())
+    for mod in sorted(modules):
+        try:
+            digest.update(inspect.getsource(sys.modules[mod]).encode())
+        except (KeyError, OSError, TypeError):
+            digest.update(mod.encode())
     key = digest.hexdigest()[:16]
     if key in _CACHE:
         return _CACHE[key]
@@ -355,5 +461,30 @@ def load_kernel(lay: Layout | None = None):
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
+    _compile(module)
     _CACHE[key] = module
     return module
+
+
+def _run_signature():
+    from numba import types
+
+    f2, f3 = types.float64[:, ::1], types.float64[:, :, ::1]
+    i1 = types.int64[::1]
+    return (f2, f2, f2, f2, f3, f3, f3, f3, i1, f3, types.float64, types.float64, i1, types.int64,
+            types.int64, f3)
+
+
+def _compile(module) -> None:
+    """Compile `run` for the simulator's argument types now (or load it from numba's cache),
+    with LLVM's SLP vectoriser on: numba leaves it off by default, and it is what turns the
+    hooks' 4-wheel loops into vector instructions (sqrt and division 4 at a time). The tests in
+    tests/model/test_kernel_numerics.py check the compiled kernel against a plain numpy model."""
+    from numba.core import config
+
+    previous = config.SLP_VECTORIZE
+    config.SLP_VECTORIZE = 1
+    try:
+        module.run.compile(_run_signature())
+    finally:
+        config.SLP_VECTORIZE = previous

@@ -24,7 +24,11 @@ from omnibench.model.terms import Layout, layout
 
 METHODS = {"heun": kernel.METHOD_HEUN, "rk4": kernel.METHOD_RK4}
 DEFAULT_METHOD = "rk4"
-STABILITY_LIMIT = 2.5  # largest h * lambda allowed; RK4 is stable to 2.78 on the real axis, Heun to 2.0
+# Largest h * lambda allowed per method, with a margin below the real-axis stability limit of
+# each explicit scheme (Heun / explicit RK2: 2.0; classical RK4: 2.785). lambda is the largest
+# decay rate of the friction and back-EMF damping near zero speed (see `_stiffness`).
+STABILITY_LIMITS = {"heun": 1.8, "rk4": 2.5}
+STABILITY_LIMIT = STABILITY_LIMITS[DEFAULT_METHOD]
 
 _CORE_TERM_OF = {"a": "transmission_friction", "b": "transmission_friction", "c": "transmission_friction",
                  "a_r": "roller_friction", "b_r": "roller_friction", "c_r": "roller_friction",
@@ -114,9 +118,11 @@ def _stiffness(robot: Robot, scenario: Scenario, FN, Rm, Sm, M) -> float:
     return float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(M, K)))))
 
 
-def stable_substeps(lam: float, dt: float) -> int:
-    """Sub-steps per physics step so that h * lambda <= STABILITY_LIMIT."""
-    return max(1, math.ceil(lam * dt / STABILITY_LIMIT))
+def stable_substeps(lam: float, dt: float, method: str = DEFAULT_METHOD) -> int:
+    """Sub-steps per physics step so that h * lambda <= STABILITY_LIMITS[method]."""
+    if method not in STABILITY_LIMITS:
+        raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    return max(1, math.ceil(lam * dt / STABILITY_LIMITS[method]))
 
 
 def signal_names(lay: Layout | None = None) -> list[str]:
@@ -200,7 +206,14 @@ def simulate_batch(
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
         raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
-    sub = substeps or stable_substeps(max(p.substeps_lambda for p in preps), dt)
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    # sub-steps per trajectory: a stiff parameter set does not slow the others down, and a
+    # trajectory gives the same numbers alone or inside any batch
+    if substeps:
+        sub = np.array([int(substeps)], dtype=np.int64)
+    else:
+        sub = np.array([stable_substeps(p.substeps_lambda, dt, method) for p in preps], dtype=np.int64)
     n_rec = n_steps // record_every + 1
     stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
     columns = signal_names(lay)
@@ -286,7 +299,7 @@ class Simulator:
             X[kernel.NX_FIXED + len(self._lay.terms):] = self._X[kernel.NX_FIXED + len(self._lay.terms):]
         self._X = X
         self._prep = prep
-        self._sub = stable_substeps(prep.substeps_lambda, self.dt)
+        self._sub = np.array([stable_substeps(prep.substeps_lambda, self.dt, self.method)], dtype=np.int64)
         self._duties = np.zeros(4)
         self._last = self._advance_steps(np.zeros(4), 0)
 
@@ -299,7 +312,7 @@ class Simulator:
             idx = np.zeros(1, dtype=np.int64)
             Xc = self._X.copy()
             self._mod.run(Xc[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
-                          p.Minv[None], p.M[None], idx, U, self.t, self.dt, 1, METHODS[self.method], 1, REC)
+                          p.Minv[None], p.M[None], idx, U, self.t, self.dt, self._sub, METHODS[self.method], 1, REC)
             return REC[0, 0]
         idx = np.zeros(n, dtype=np.int64)
         XF = self._mod.run(self._X[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],

@@ -1,0 +1,141 @@
+"""Numerical guards for the generated kernel: every speed-up of the integrator must keep these.
+
+- upside down, each wheel settles at the closed-form speed of design.md §2 (1e-4 relative);
+- on the ground with every paper term active, the battery energy is accounted for (0.1 %);
+- Heun and RK4 agree on a ground trajectory (documented tolerance below);
+- a batch of one, or a robot inside a mixed batch, reproduces `simulate` exactly;
+- near zero speed, the sub-step rule keeps both methods stable (no limit cycle from sign()).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from omnibench.model import Scenario, default_robot, simulate, simulate_batch
+from omnibench.model.context import GRAVITY
+from omnibench.model.simulator import prepare, stable_substeps
+
+# A ground run with changing duties: forward, rotate, diagonal-ish, lateral, stop.
+T_CMD = np.array([0.0, 2.0, 4.0, 6.0, 8.0])
+U_CMD = np.array(
+    [
+        [0.5, 0.5, 0.5, 0.5],
+        [0.5, -0.5, 0.5, -0.5],
+        [0.3, 0.6, 0.6, 0.3],
+        [-0.4, 0.4, 0.4, -0.4],
+        [0.0, 0.0, 0.0, 0.0],
+    ]
+)
+
+# Heun (2nd order) vs RK4 (4th order) at dt = 1 ms on the 10 s run above. Against a reference
+# (RK4 with 20 sub-steps) RK4's final pose is off by ~1e-6 m / 1e-6 rad, Heun's by ~4e-5 m /
+# 2e-5 rad; the largest speed gap is in the ~10 ms after a duty step (yaw rate ~8e-3 rad/s),
+# and Heun's battery energy is ~3e-5 relative off. Tolerances (about 3x the measured gaps):
+HEUN_POSE_TOL_M = 1.5e-4
+HEUN_POSE_TOL_RAD = 1e-4
+HEUN_SPEED_TOL = 3e-2  # m/s and rad/s, max over the run
+HEUN_ENERGY_REL = 1e-4
+
+
+def closed_form_speed(robot, u: float, F_N: float) -> float:
+    """Steady wheel speed upside down: motor torque balances (1 + c F_N)(a w + b sign w)."""
+    load = 1.0 + robot.c * F_N
+    drive = robot.eta * robot.k_t * abs(u) * robot.V_batt / robot.R_a - load * robot.b
+    damp = robot.eta * robot.k_t * robot.k_e / robot.R_a + load * robot.a
+    return np.sign(u) * drive / damp
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+@pytest.mark.parametrize("u", [0.5, -0.5])
+def test_upside_down_steady_speed_matches_closed_form(u, method):
+    robot = default_robot()
+    wheel_mass = (0.9, 1.5, 2.5, 4.0)  # several axle loads at once, one per wheel
+    scenario = Scenario(mode="upside_down", wheel_mass=wheel_mass)
+    df = simulate(robot, scenario, [0.0], [[u] * 4], 1.0, method=method, record_every=100)
+    for j, mass in enumerate(wheel_mass):
+        expected = closed_form_speed(robot, u, mass * GRAVITY)
+        got = df[f"phi_dot{j + 1}"].iloc[-1]
+        assert abs(expected) > 1.0
+        assert got == pytest.approx(expected, rel=1e-4), (j, got, expected)
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+def test_energy_balance_ground_all_paper_terms(method):
+    robot = default_robot().replace(I_0=0.15)  # quiescent current too
+    for name in ("a", "b", "c", "a_r", "b_r", "c_r", "C_r"):
+        assert getattr(robot, name) > 0, name  # every paper term active
+    df = simulate(robot, Scenario(payload=2.0), T_CMD, U_CMD, 10.0, method=method, record_every=10)
+    end, start = df.iloc[-1], df.iloc[0]
+    terms = [c for c in df.columns if c.startswith("E_") and c not in
+             ("E_batt", "E_copper", "E_conversion", "E_quiescent")]
+    assert {"E_transmission_friction", "E_roller_friction", "E_rolling_resistance"} <= set(terms)
+    for name in ("E_transmission_friction", "E_roller_friction", "E_rolling_resistance"):
+        assert end[name] > 1.0, name  # each term dissipated something real
+    assert end["E_quiescent"] == pytest.approx(0.15 * robot.V_batt * 10.0, rel=1e-9)
+    accounted = (end["E_copper"] + end["E_conversion"] + end["E_quiescent"] + sum(end[t] for t in terms)
+                 + end["KE"] - start["KE"])
+    assert end["E_batt"] > 100.0
+    assert accounted == pytest.approx(end["E_batt"], rel=1e-3)
+    # in practice the balance closes far tighter than the 0.1 % asked for (RK4 ~1e-8, Heun ~2e-6)
+    assert abs(accounted - end["E_batt"]) / end["E_batt"] < 1e-5
+
+
+def test_heun_and_rk4_agree_on_ground_trajectory():
+    robot = default_robot()
+    a = simulate(robot, Scenario(), T_CMD, U_CMD, 10.0, method="rk4", record_every=100)
+    b = simulate(robot, Scenario(), T_CMD, U_CMD, 10.0, method="heun", record_every=100)
+    assert np.hypot(a["x"].iloc[-1], a["y"].iloc[-1]) > 0.5  # it really went somewhere
+    assert abs(a["x"].iloc[-1] - b["x"].iloc[-1]) < HEUN_POSE_TOL_M
+    assert abs(a["y"].iloc[-1] - b["y"].iloc[-1]) < HEUN_POSE_TOL_M
+    assert abs(a["psi"].iloc[-1] - b["psi"].iloc[-1]) < HEUN_POSE_TOL_RAD
+    for col in ("v1", "v2", "psi_dot"):
+        assert np.max(np.abs(a[col].to_numpy() - b[col].to_numpy())) < HEUN_SPEED_TOL, col
+    # energies too (relative)
+    assert b["E_batt"].iloc[-1] == pytest.approx(a["E_batt"].iloc[-1], rel=HEUN_ENERGY_REL)
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+def test_batch_of_one_equals_single_trajectory_exactly(method):
+    robot = default_robot()
+    single = simulate(robot, Scenario(), T_CMD, U_CMD, 3.0, method=method, record_every=7)
+    batch = simulate_batch(robot, Scenario(), T_CMD, U_CMD, 3.0, method=method, record_every=7)
+    frame = batch.frame(0)
+    for col in ("x", "y", "psi", "v1", "v2", "psi_dot", "E_batt", "E_copper", "i1", "i4", "I_batt"):
+        np.testing.assert_array_equal(frame[col].to_numpy(), single[col].to_numpy(), err_msg=col)
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+def test_robot_inside_mixed_batch_equals_its_single_trajectory(method):
+    base = default_robot()
+    # different friction (so different stiffness and sub-steps) and different payloads
+    robots = [base, base.replace(b=1.5, b_r=3.0), base.replace(a=0.05, c=0.0), base.replace(C_r=0.05)]
+    scenarios = [Scenario(), Scenario(payload=3.0), Scenario(), Scenario(mode="upside_down")]
+    batch = simulate_batch(robots, scenarios, T_CMD, U_CMD, 2.5, method=method, record_every=5)
+    for k, (robot, scenario) in enumerate(zip(robots, scenarios)):
+        single = simulate_batch(robot, scenario, T_CMD, U_CMD, 2.5, method=method, record_every=5)
+        np.testing.assert_array_equal(batch.array[k], single.array[0], err_msg=f"robot {k}")
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+@pytest.mark.parametrize("mode", ["ground", "upside_down"])
+def test_stops_cleanly_at_zero_duty(method, mode):
+    """Regularised sign() is stiff near zero speed: the sub-step rule must keep it stable."""
+    robot = default_robot()
+    t = [0.0, 0.5]
+    u = [[0.4, -0.3, 0.2, 0.5], [0.0, 0.0, 0.0, 0.0]]
+    df = simulate(robot, Scenario(mode=mode), t, u, 1.5, method=method, record_every=1)
+    tail = df[df["t"] > 1.2]
+    cols = ["phi_dot1", "phi_dot2", "phi_dot3", "phi_dot4"]
+    assert np.max(np.abs(df.loc[df["t"] < 0.5, cols].to_numpy())) > 1.0
+    assert np.max(np.abs(tail[cols].to_numpy())) < 1e-3
+    assert np.all(np.isfinite(df[cols].to_numpy()))
+
+
+def test_substeps_respect_each_methods_stability_limit():
+    robot = default_robot()
+    for scenario in (Scenario(), Scenario(mode="upside_down"), Scenario(payload=5.0)):
+        lam = prepare(robot, scenario).substeps_lambda
+        for method, limit in (("heun", 2.0), ("rk4", 2.785)):
+            n = stable_substeps(lam, 1e-3, method=method)
+            assert lam * 1e-3 / n < limit, (scenario, method)
