@@ -44,7 +44,8 @@ def procedure_files(folder: Path | None) -> dict[str, Path]:
 
 
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
-                 echo: Callable[[str], None] = print, progress: bool = False) -> dict[str, Any]:
+                 echo: Callable[[str], None] = print, progress: bool = False,
+                 ammeter: str | None = None) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis stages; write out/report.md."""
     from omnibench.bench.procedure import load_plan
     from omnibench.bench.session import load_robot_file, run_command
@@ -66,7 +67,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     for p, f in files.items():
         echo(f"== {COMMAND_OF[p]}: {f}")
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
-                          progress=progress)
+                          progress=progress, ammeter=ammeter if p == "energy_trajectories" else None)
         results["procedures"][p] = res
     results["analysis"] = run_analysis(runs_dir, out, robot_file, echo)
     plots = make_plots(results, out, robot)

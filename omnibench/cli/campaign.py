@@ -17,8 +17,11 @@ import click
               help="Robot file (TOML). Default: the real Omnibot's numbers.")
 @click.option("--procedures", "procedures_dir", type=click.Path(path_type=Path, file_okay=False), metavar="DIR",
               help="Folder holding the four procedure files (<procedure>.toml). Default: the shipped ones.")
+@click.option("--ammeter", metavar="URL", default=None,
+              help="SCPI ammeter on its own serial URL for the energy runs (default: the board's sensor).")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
-def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None, as_json: bool) -> None:
+def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
+            ammeter: str | None, as_json: bool) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
@@ -30,7 +33,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         click.echo(line, err=as_json)
 
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
-                       progress=not as_json and sys.stderr.isatty())
+                       progress=not as_json and sys.stderr.isatty(), ammeter=ammeter)
     if as_json:
         from omnibench.runs.store import json_ready
 
