@@ -33,7 +33,7 @@ import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
 from omnibench.bench.procedure import Plan, Step, World
-from omnibench.errors import BoardError, UserError
+from omnibench.errors import BoardError
 
 FAULT_NAMES = ("WATCHDOG", "OVERCURRENT", "UNDERVOLTAGE", "DRIVER", "ESTOP")
 
@@ -305,7 +305,7 @@ class Runner:
             verdict[0] = v
             return v.steady
 
-        t0, t_end = self._run_for_hold(step, hold, data, until)
+        t0, t_end = self._run_for(step, hold, step.duration, [(0.0, step.schedule[0][1])], until)
         t, phi = hold.arrays(self.cpr)
         sel = t >= t[-1] - ss["average"]
         w = angle_slope(t[sel], phi[sel]) if sel.sum() >= 3 else np.full(4, np.nan)
@@ -324,11 +324,6 @@ class Runner:
             self.writer.event("not_steady", step=step.index, t=t_end,
                               why=f"wheel speeds not steady after max_hold {ss['max_hold']:g} s")
         return rec
-
-    def _run_for_hold(self, step: Step, hold: StepData, data: StepData,
-                      until: Callable[[float], bool]) -> tuple[float, float]:
-        t0, t_end = self._run_for(step, hold, step.duration, [(0.0, step.schedule[0][1])], until)
-        return t0, t_end
 
     def _electrical(self, d: StepData, sel: np.ndarray | None = None) -> dict[str, Any]:
         out: dict[str, Any] = {}

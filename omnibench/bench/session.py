@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from omnibench.bench.procedure import Plan, Step, default_procedure_path, load_plan, stall_current
+from omnibench.bench.procedure import Plan, default_procedure_path, load_plan, stall_current
 from omnibench.errors import UserError
 
 LABELS = {
