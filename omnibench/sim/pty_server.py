@@ -155,10 +155,7 @@ class PtyServer:
         self.write_status(force=True)
         try:
             while not self.stop_event.is_set():
-                baud = p.host_baud()
-                if baud != self._baud and baud is not None:
-                    self._baud = baud
-                    b.set_host_baud(baud)
+                self._check_baud()
                 if fast:
                     now = time.monotonic()
                     nxt = b.next_event_us()
@@ -193,6 +190,7 @@ class PtyServer:
                     if fd == p.master:
                         data = p.receive()
                         if data:
+                            self._check_baud()  # the host sets its speed before it writes
                             if not fast:
                                 b.advance_to(max(b.clock_us, int((time.monotonic() - t0) * self.world.speed * 1e6)))
                             b.feed(data)
@@ -203,6 +201,13 @@ class PtyServer:
             self._say("stopped the motors, shutting down")
             self.write_status(serving=False, force=True)
             self.close()
+
+    def _check_baud(self) -> None:
+        """Garble the link while the host's end of the pty is set to another speed."""
+        baud = self.pty.host_baud() if not self._closed_link else None
+        if baud is not None and baud != self._baud:
+            self._baud = baud
+            self.board.set_host_baud(baud)
 
     def _serve_ammeter(self) -> None:
         if self.ammeter is not None and self.ammeter_pty is not None:

@@ -112,3 +112,15 @@ def test_ammeter_served_on_its_own_pty(served) -> None:
         s = [x for x in b.wait(0.5) if x.ammeter_current == x.ammeter_current]
         b.stop()
     assert len(s) >= 5 and max(x.ammeter_current for x in s) > 0.5
+
+
+def test_wrong_baud_on_pty_is_reported(served) -> None:
+    """The server reads the speed the host set on the pty; another speed garbles the link."""
+    import pytest as _pytest
+
+    from omnibench.errors import BoardError
+
+    with _pytest.raises(BoardError, match=r"baud rate \(board expects 115200, opened at 9600\)"):
+        Board.open(served.path, baudrate=9600, timeout=0.5)
+    with Board.open(served.path) as b:  # and at the right speed it works again
+        assert b.hello.counts_per_rev == 980
