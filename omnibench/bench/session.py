@@ -232,26 +232,29 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         )
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
-    operator = _choose_operator(board, plan, answer_op, measurement_noise)
-    writer.update(operator=operator.source)
-    restore = sigterm_as_interrupt()
-    total = sum(s.max_time for s in todo)
-    bar_ctx = (click.progressbar(length=max(int(total * 10), 1), label=LABELS[procedure], file=None,
-                                 show_eta=True, show_percent=True) if progress and todo else None)
-    done_ds = [0.0]
-
-    def advance(dt: float, label: str) -> None:
-        if bar_ctx is not None:
-            done_ds[0] += dt * 10
-            step = int(done_ds[0])
-            if step:
-                bar_ctx.update(step)
-                done_ds[0] -= step
-
-    runner = Runner(plan, robot, board, writer, operator, progress=advance,
-                    echo=(lambda line: None) if bar_ctx is not None else echo)
     status, reason = "failed", "unknown"
+    bar_ctx: Any = None
+    restore: Callable[[], Any] = lambda: None
     try:
+        restore = sigterm_as_interrupt()
+        operator = _choose_operator(board, plan, answer_op, measurement_noise)
+        writer.update(operator=operator.source)
+        total = sum(s.max_time for s in todo)
+        if progress and todo:
+            bar_ctx = click.progressbar(length=max(int(total * 10), 1), label=LABELS[procedure], file=None,
+                                        show_eta=True, show_percent=True)
+        done_ds = [0.0]
+
+        def advance(dt: float, label: str) -> None:
+            if bar_ctx is not None:
+                done_ds[0] += dt * 10
+                step = int(done_ds[0])
+                if step:
+                    bar_ctx.update(step)
+                    done_ds[0] -= step
+
+        runner = Runner(plan, robot, board, writer, operator, progress=advance,
+                        echo=(lambda line: None) if bar_ctx is not None else echo)
         if bar_ctx is not None:
             bar_ctx.__enter__()
         try:
