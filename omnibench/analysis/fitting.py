@@ -22,9 +22,13 @@ standard error (encoder quantisation through the speed estimator, current noise 
 averaged samples, the operator's tape noise); where a run does not give one (the 2019 sweep),
 each (procedure, signal) group gets the RMS of its residuals from a first pass.
 
-Uncertainties: cov = s^2 (J^T W J)^-1 with s^2 = chi^2 / dof (so unmodelled structure widens the
-intervals instead of hiding), standard errors, 95 % intervals from Student's t with dof degrees
-of freedom, the correlation matrix.
+Uncertainties: cov = (J^T W J)^-1 J^T W S W J (J^T W J)^-1, where S scales each observation
+group's (procedure/signal) variance by its own chi^2 per degree of freedom (the group's share of
+the dof from the leverages). With one group this is the textbook s^2 (J^T W J)^-1 with
+s^2 = chi^2 / dof; with several it keeps one under- or over-stated noise figure (or a group whose
+residual has structure) from mis-sizing the intervals of parameters other groups determine.
+Unmodelled structure therefore widens the intervals instead of hiding. Standard errors, 95 %
+intervals from Student's t with dof degrees of freedom, the correlation matrix.
 
 Identifiability (design.md §3): the weighted Jacobian of the requested parameters, columns
 scaled to unit length, is decomposed (SVD). Its rank and condition number are reported. A
@@ -200,6 +204,8 @@ class FitResult:
     runs_used: list[str]
     procedures: list[str]
     s2: float = 1.0
+    #: chi^2 per degree of freedom of each "procedure/signal" group (used to scale its noise)
+    group_s2: dict[str, float] = field(default_factory=dict)
     initial: dict[str, float] = field(default_factory=dict)
     fixed: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
@@ -235,6 +241,7 @@ class FitResult:
             "correlation": {a: {b: f(self.corr.loc[a, b]) for b in self.corr.columns} for a in self.corr.index},
             "condition_number": f(self.condition_number), "rank": int(self.rank),
             "n_parameters": len(self.free), "chi2": f(self.chi2), "dof": int(self.dof), "s2": f(self.s2),
+            "group_s2": {k: f(v) for k, v in self.group_s2.items()},
             "runs_used": list(self.runs_used), "procedures": list(self.procedures),
             "confounded": self.confounded, "notes": list(self.notes),
             "error_by_procedure": {k: f(v) for k, v in _nrmse_table(self.residuals[self.residuals["used"]]).items()},
@@ -516,9 +523,23 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     s2 = chi2 / dof
     JTJ = J.T @ J
     try:
-        cov_x = np.linalg.inv(JTJ) * s2
+        A = np.linalg.inv(JTJ)
     except np.linalg.LinAlgError:
-        cov_x = np.linalg.pinv(JTJ) * s2
+        A = np.linalg.pinv(JTJ)
+    # Per-group noise scale (Birge ratio of each procedure/signal group, with the group's share of
+    # the degrees of freedom from the leverages), then the sandwich covariance: a group whose
+    # stated errors are too small (or whose residual carries structure) widens the intervals of
+    # the parameters it informs, not of all.
+    lev = np.einsum("ij,jk,ik->i", J, A, J)
+    g_used = groups[used]
+    s2_row = np.empty(n_used)
+    group_s2: dict[str, float] = {}
+    for g in np.unique(g_used):
+        m = g_used == g
+        dof_g = max(float(m.sum() - lev[m].sum()), 1.0)
+        group_s2[str(g)] = float(np.sum(r[m] ** 2) / dof_g)
+        s2_row[m] = group_s2[str(g)]
+    cov_x = A @ (J.T @ (J * s2_row[:, None])) @ A
     cov = cov_x * np.outer(prob.scale, prob.scale)
     se_a = np.sqrt(np.maximum(np.diag(cov), 0))
     tq = float(stats.t.ppf(0.975, dof))
@@ -569,7 +590,8 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
         cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),
         condition_number=cond_req, rank=rank_req, identifiable=verdicts, residuals=residuals, chi2=chi2, dof=dof,
-        runs_used=runs_used, procedures=procs, s2=s2, initial={p: param_value(robot, p) for p in free},
+        runs_used=runs_used, procedures=procs, s2=s2, group_s2=group_s2,
+        initial={p: param_value(robot, p) for p in free},
         fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev,
         date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     )

@@ -12,7 +12,7 @@ How each procedure is reproduced (always through the simulator, so any declared 
   the prediction is the final wheel speed (the model reaches steady state in tens of ms) and,
   for the current entries, the final motor current.
 - forward / lateral: the duties for `duration` s then zero until `t_total`, on the ground with
-  the payload; the drive speeds use the same straight-line fit over [w_t0, w_t1] as the
+  the payload (simulated until COAST s after the stop); the drive speeds use the same straight-line fit over [w_t0, w_t1] as the
   measurement (on the model's angle at 100 Hz), the displacement is the model's final pose
   in the start frame (forward runs: signed distance).
 - energy: the logged duties (zero-order hold between samples) on the ground; E_batt at t_total.
@@ -37,6 +37,7 @@ from omnibench.model.simulator import prepare, simulate_batch, stable_substeps
 SWEEP_HOLD = 0.3  # s simulated per sweep steady state
 PHYSICS_DT = 1e-3  # s
 RECORD_DT = 0.01  # s, model angle sampling for the drive-speed fit
+COAST = 0.5  # s simulated after the motors stop in a timed run (the robot is at rest well before)
 
 #: Observation-vector columns (metadata of every entry)
 ENTRY_COLUMNS = ["procedure", "run", "step", "wheel", "signal", "unit", "measured", "sigma", "speed", "F_N",
@@ -153,7 +154,12 @@ class Predictor:
                     k = self._add(signal=sig, unit="m", wheel=0, measured=r[col], sigma=r["measured_se"],
                                   speed=np.nan, direction=float(np.sign(r[col])), u=np.nan, **meta)
                     idx.append((sig, 0, k))
-            g.add(t_cmd, U, tot, Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects),
+            # after the motors stop the robot is braked by the back-EMF and rests within ~0.1 s:
+            # simulate COAST s of it, not the whole settle time the operator waited
+            nz = np.flatnonzero(np.any(U != 0, axis=1))
+            t_off = float(t_cmd[nz[-1] + 1]) if nz.size and nz[-1] + 1 < len(t_cmd) else tot
+            t_end = min(tot, max(t_off + COAST, float(r["w_t1"])))
+            g.add(t_cmd, U, t_end, Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects),
                   (proc, idx, (float(r["w_t0"]), float(r["w_t1"]))))
 
     def _build_forward(self, df: pd.DataFrame) -> None:
