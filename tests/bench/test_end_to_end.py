@@ -229,3 +229,16 @@ def test_energy_with_external_ammeter_matches_board_sensor(capsys, tmp_path):
             # readings only every 50 ms of board time: fewer current samples than telemetry rows
             assert 0 < run.samples["I_batt"].notna().sum() < len(run.samples)
     np.testing.assert_allclose(energies["ammeter"], energies["board"], rtol=0.05)
+
+
+def test_resume_refuses_complete_and_foreign_runs(capsys, tmp_path):
+    code, out, err = omnibench(capsys, "forward", "--port", "sim://?seed=9", "--procedure",
+                               str(PROC / "small_forward.toml"), "--out", str(tmp_path), "--json")
+    assert code == 0, err
+    run_dir = json.loads(out)["run"]
+    code, _, err = omnibench(capsys, "forward", "--port", "sim://", "--resume", run_dir)
+    assert code == 2 and "already complete" in err
+    code, _, err = omnibench(capsys, "sweep", "--port", "sim://", "--resume", run_dir)
+    assert code == 2 and "is a forward_runs run" in err
+    code, _, err = omnibench(capsys, "sweep", "--port", "sim://", "--resume", str(tmp_path))
+    assert code == 2 and "not a run directory" in err

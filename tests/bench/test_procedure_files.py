@@ -106,3 +106,25 @@ def test_voltages_convert_with_battery_voltage(tmp_path, robot):
     plan = load_plan(_write(tmp_path, SWEEP.format(levels='voltages = ["12.35 V", 6.175]')), robot)
     assert sorted({abs(s.params["duty"]) for s in plan.steps}) == pytest.approx([0.25, 0.5])
     assert math.isclose(plan.steps[0].params["voltage"], 6.175)
+
+
+def test_kinematic_duties_beyond_the_limit_are_refused(tmp_path, robot):
+    text = """procedure = "energy_trajectories"
+[[trajectories]]
+name = "dash"
+kind = "square"
+side = "1 m"
+speed = "2.5 m/s"
+"""
+    # 2.5 m/s forward needs k_e * 2.5 / r / V_batt = 2.4 > max_duty 1
+    with pytest.raises(UserError, match=r"step 0 \(dash .*needs duty 2\.4"):
+        load_plan(_write(tmp_path, text), robot)
+
+
+def test_lateral_and_energy_validation_messages(tmp_path, robot):
+    lat = 'procedure = "lateral_runs"\n[runs]\nduration = "1 s"\n[[directions]]\nheading = "30 deg"\nspeed = "-1 m/s"\n'
+    with pytest.raises(UserError, match=r"p.toml:6: \[directions\] speed: must be > 0"):
+        load_plan(_write(tmp_path, lat), robot)
+    en = 'procedure = "energy_trajectories"\n[[trajectories]]\nname = "x"\nkind = "zigzag"\n'
+    with pytest.raises(UserError, match=r"p.toml:4: \[trajectories\] kind: expected one of square"):
+        load_plan(_write(tmp_path, en), robot)
