@@ -81,7 +81,7 @@ winding_heating = register(
         "temperature rise per squared ampere. A warm motor is weaker at the same duty: steady "
         "speeds drift down over a campaign.",
         params=(
-            Param("theta", "K/A^2", 15.0, "steady winding temperature rise per A^2 (R_a R_th)", 0.0, 1000.0),
+            Param("theta", "K/A^2", 15.0, "steady winding temperature rise per A^2 (R_a R_th)", 0.0, 200.0),
             Param("tau_th", "s", 60.0, "thermal time constant of the winding", 1.0, 1e5),
             Param("alpha_cu", "1/K", 0.00393, "temperature coefficient of copper resistance", 0.0, 0.01),
         ),

@@ -45,6 +45,56 @@ class SquareWave:
     current: bool = False
 
 
+#: Short procedure files for simulated diagnosis campaigns (the shipped ones are for the lab).
+SHORT_FILES = {"energy": Path(__file__).with_name("campaigns") / "energy_short.toml"}
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """Which experiments a campaign runs (procedure tables, and a square wave or none)."""
+
+    procedures: tuple[str, ...] = ("sweep",)
+    step_response: SquareWave | None = None
+    short: bool = True  # use SHORT_FILES where one exists
+
+
+#: The campaign that reveals each library effect: the procedure its physics shows in (docs/effects.md),
+#: kept small so a diagnosis runs in seconds. Used by the tests and benchmarks/diagnose.py.
+REVEALING: dict[str, CampaignSpec] = {
+    "stribeck_friction": CampaignSpec(("sweep",)),
+    "driver_deadband": CampaignSpec(("sweep",)),
+    "asymmetric_coulomb": CampaignSpec(("sweep",)),
+    "per_wheel_friction": CampaignSpec(("sweep",)),
+    "quadratic_drag": CampaignSpec(("sweep",)),
+    "battery_resistance": CampaignSpec(("sweep",)),
+    "cogging_torque": CampaignSpec((), SquareWave(duties=(0.3, -0.3), half_period=1.0, duration=6.0)),
+    # fast full-voltage reversals heat the windings; logged at 10 Hz so the encoder's
+    # finite-difference noise stays below the thermal drift
+    "winding_heating": CampaignSpec((), SquareWave(duties=(1.0, -1.0), half_period=0.25, duration=12.0,
+                                                   sample_dt=0.1, jitter=0.02)),
+    "com_offset": CampaignSpec(("forward",)),
+    # forward runs alone cannot tell a slope from direction-asymmetric gearbox friction
+    # (test_diagnose: reported as ambiguous); the upside-down sweep separates them
+    "floor_slope": CampaignSpec(("sweep", "forward")),
+    "quiescent_current": CampaignSpec(("sweep", "energy")),
+}
+
+#: Campaigns for clean-world (no undeclared effect) checks: together they exercise every candidate.
+CLEAN: tuple[CampaignSpec, ...] = (
+    CampaignSpec(("sweep",)),
+    CampaignSpec(("forward", "energy")),
+    CampaignSpec((), SquareWave(duties=(0.3, -0.3), half_period=1.0, duration=6.0)),
+)
+
+
+def campaign(robot: Any, spec: CampaignSpec, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
+             seed: int = 0) -> Observations:
+    """`simulated_campaign` for a CampaignSpec."""
+    files = {k: v for k, v in SHORT_FILES.items() if k in spec.procedures} if spec.short else None
+    return simulated_campaign(robot, world_effects, seed=seed, procedures=spec.procedures,
+                              step_response=spec.step_response, files=files)
+
+
 def simulated_campaign(robot: Any, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
                        seed: int = 0, procedures: Sequence[str] = ("sweep",),
                        step_response: SquareWave | None = None, current: bool = True,

@@ -97,6 +97,7 @@ class Problem:
         block = np.where(t["procedure"].to_numpy() == "step_response",
                          np.floor(np.nan_to_num(t["time"].to_numpy(float)) / STEP_RESPONSE_BLOCK), step)
         t["cv_group"] = t["run"].astype(str) + "#" + pd.Series(block).astype(int).astype(str)
+        t["since_step"] = _time_since_duty_change(t)
         self.table = t
         self.groups = sorted(set(self.group[self.used]))
         # smallest noise scale a group may take: the stated standard errors may be pessimistic
@@ -143,6 +144,26 @@ class Problem:
         for g, (rss, n) in self.rss(f).items():
             out[g] = max(math.sqrt(rss / max(n, 1)), self.floor.get(g, 1e-12), 1e-12)
         return out
+
+
+def _time_since_duty_change(t: pd.DataFrame) -> np.ndarray:
+    """For step-response entries: time since that wheel's duty last changed, s (NaN elsewhere)."""
+    out = np.full(len(t), np.nan)
+    sr = t["procedure"].to_numpy() == "step_response"
+    if not sr.any():
+        return out
+    for _, idx in t[sr].groupby(["run", "wheel"]).groups.items():
+        idx = np.asarray(list(idx))
+        tt = t.loc[idx, "time"].to_numpy(float)
+        uu = t.loc[idx, "u"].to_numpy(float)
+        order = np.argsort(tt, kind="stable")
+        last = tt[order[0]] if len(order) else np.nan
+        prev = np.nan
+        for k in order:
+            if uu[k] != prev:
+                last, prev = tt[k], uu[k]
+            out[idx[k]] = tt[k] - last
+    return out
 
 
 def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] | None = None) -> Any:

@@ -37,6 +37,7 @@ VARIABLES = {
     "wheel": ("wheel", "", False),
     "wheel x direction": ("wheel_direction", "", False),
     "time": ("time", "s", True),
+    "time since duty change": ("since_step", "s", True),
     "current": ("current", "A", True),
     "payload": ("payload", "kg", False),
     "step": ("step", "", True),
