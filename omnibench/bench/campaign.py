@@ -153,8 +153,8 @@ def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Calla
         else:
             if "--model" in opts:
                 args += ["--model", str(model)]
-            if "--out" in opts:
-                args += ["--out", str(out / name)]
+            if "--out" in opts:  # diagnose writes the extended model (a TOML file)
+                args += ["--out", str(out / f"model_{name.replace('-', '_')}.toml")]
         if "--plots" in opts:
             args += ["--plots", str(out / "plots" / name)]
         if "--json" in opts:
