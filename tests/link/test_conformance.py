@@ -8,7 +8,6 @@ can check what the motors really do.
 from __future__ import annotations
 
 import uuid
-from pathlib import Path
 
 import pytest
 
