@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
+import numba
 import numpy as np
 import pandas as pd
 
@@ -218,8 +219,15 @@ def simulate_batch(
     stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
     columns = signal_names(lay)
     REC = np.zeros((B, n_rec, len(columns)))
-    mod.run(stack("x0"), stack("rv"), stack("P"), stack("EN"), stack("Rm"), stack("Sm"), stack("Minv"),
-            stack("M"), idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
+    # hand out trajectories in small chunks, so that a thread slowed by other work on the
+    # machine does not leave the others idle at the end
+    previous = numba.get_parallel_chunksize()
+    numba.set_parallel_chunksize(max(1, B // (16 * numba.get_num_threads())))
+    try:
+        mod.run(stack("x0"), stack("rv"), stack("P"), stack("EN"), stack("Rm"), stack("Sm"), stack("Minv"),
+                stack("M"), idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
+    finally:
+        numba.set_parallel_chunksize(previous)
     t = np.arange(n_rec) * record_every * dt
     return BatchResult(t, REC, columns)
 
