@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-START_TIMEOUT_S = 90.0  # first start may compile the physics kernel
+START_TIMEOUT_S = 240.0  # a first start may compile the physics kernel (numba), slowly on a busy machine
 
 
 @dataclass
