@@ -8,6 +8,8 @@ regularisation makes the equations stiff (see `stable_substeps`).
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
@@ -76,47 +78,89 @@ def normal_forces(robot: Robot, scenario: Scenario) -> np.ndarray:
 def prepare(robot: Robot, scenario: Scenario, lay: Layout | None = None) -> Prepared:
     """Flatten (robot, scenario) into the kernel's per-trajectory arrays."""
     lay = lay or layout()
+    p = _prepare(robot, scenario, lay)
+    lam = _stiffness_many(p.rv[None], p.P[None], p.Rm[None], p.Sm[None], p.M[None], lay)[0]
+    return dataclasses.replace(p, substeps_lambda=float(lam))
+
+
+def _prepare(robot: Robot, scenario: Scenario, lay: Layout) -> Prepared:
+    """`prepare` without the stiffness (simulate_batch computes it for all sets at once)."""
     mass = robot.m + scenario.payload
     FN = normal_forces(robot, scenario)
-    values = dict(
-        mode=0.0 if scenario.mode == "ground" else 1.0, mass=mass, I_w=robot.I_w, k_t=robot.k_t,
-        k_e=robot.k_e, R_a=robot.R_a, eta=robot.eta, V_batt=robot.V_batt, I_0=robot.I_0, L=robot.L,
-        l=robot.l, r=robot.r, sign_width_phi=robot.sign_width_phi,
-        sign_width_sigma=robot.sign_width_sigma, W=mass * GRAVITY,
-        FN1=FN[0], FN2=FN[1], FN3=FN[2], FN4=FN[3],
-    )
-    rv = np.array([values[n] for n in kernel.RV_NAMES], dtype=float)
-    P = np.zeros(lay.n_params)
+    rv = np.array([
+        0.0 if scenario.mode == "ground" else 1.0, mass, robot.I_w, robot.k_t, robot.k_e, robot.R_a,
+        robot.eta, robot.V_batt, robot.I_0, robot.L, robot.l, robot.r, robot.sign_width_phi,
+        robot.sign_width_sigma, mass * GRAVITY, FN[0], FN[1], FN[2], FN[3],
+    ])  # in the order of kernel.RV_NAMES
+    x0_t, P_t, index = _template(lay)
+    P = P_t.copy()
     EN = np.zeros(len(lay.terms))
+    for name, params in term_parameters(robot, scenario).items():
+        k, slots = index[name]
+        for pname, v in params.items():
+            P[slots[pname]] = v
+        EN[k] = 1.0
+    Rm, Sm, M, Minv = (a.copy() for a in _mechanics(
+        robot.L, robot.l, robot.r, tuple(robot.alpha), mass, robot.I_z, robot.I_w))
+    return Prepared(x0_t.copy(), rv, P, EN, Rm, Sm, Minv, M, float("nan"))
+
+
+_TEMPLATES: dict[int, tuple] = {}
+
+
+def _template(lay: Layout):
+    """Initial state and default parameters of a layout, and where each term's parameters sit."""
+    cached = _TEMPLATES.get(id(lay))
+    if cached is not None and cached[0] is lay:
+        return cached[1]
+    P = np.zeros(lay.n_params)
     x0 = np.zeros(kernel.NX_FIXED + len(lay.terms) + lay.n_states)
+    index: dict[str, tuple[int, dict[str, int]]] = {}
     for k, term in enumerate(lay.terms):
         o = lay.param_offset[k]
         for j, p in enumerate(term.params):
             P[o + j] = p.default
         s0 = kernel.NX_FIXED + len(lay.terms) + lay.state_offset[k]
         x0[s0 : s0 + term.n_states] = term.state_init
-    for name, params in term_parameters(robot, scenario).items():
-        k = lay.index(name)
-        term = lay.terms[k]
-        for pname, v in params.items():
-            P[lay.param_offset[k] + term.param_names.index(pname)] = v
-        EN[k] = 1.0
-    Rm = geometry.inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
-    Sm = geometry.slip_matrix(robot.L, robot.l, robot.alpha)
-    M = np.diag([mass, mass, robot.I_z]) + robot.I_w * Rm.T @ Rm
-    lam = _stiffness(robot, scenario, FN, Rm, Sm, M)
-    return Prepared(x0, rv, P, EN, Rm, Sm, np.linalg.inv(M), M, lam)
+        index[term.name] = (k, {p.name: o + j for j, p in enumerate(term.params)})
+    _TEMPLATES[id(lay)] = (lay, (x0, P, index))
+    return x0, P, index
 
 
-def _stiffness(robot: Robot, scenario: Scenario, FN, Rm, Sm, M) -> float:
-    """Largest decay rate (1/s) of the linearised friction and back-EMF damping near zero speed."""
-    d_w = robot.eta * robot.k_t * robot.k_e / robot.R_a + (1 + robot.c * FN) * (robot.a + robot.b / robot.sign_width_phi)
-    if scenario.mode == "upside_down":
-        return float(np.max(d_w) / robot.I_w)
-    d_w = d_w + FN * robot.C_r * robot.r / robot.sign_width_phi
-    d_r = (1 + robot.c_r * FN) * (robot.a_r + robot.b_r / robot.sign_width_sigma)
-    K = Rm.T @ np.diag(d_w) @ Rm + Sm.T @ np.diag(d_r) @ Sm
-    return float(np.max(np.real(np.linalg.eigvals(np.linalg.solve(M, K)))))
+@functools.lru_cache(maxsize=64)
+def _mechanics(L, l, r, alpha, mass, I_z, I_w):
+    """R, S, the body-frame mass matrix and its inverse (shared by parameter sets of one robot)."""
+    Rm = geometry.inverse_kinematics(L, l, r, alpha)
+    Sm = geometry.slip_matrix(L, l, alpha)
+    M = np.diag([mass, mass, I_z]) + I_w * Rm.T @ Rm
+    return Rm, Sm, M, np.linalg.inv(M)
+
+
+def _stiffness_many(rv, P, Rm, Sm, M, lay: Layout) -> np.ndarray:
+    """Largest decay rate (1/s) of the linearised friction and back-EMF damping near zero speed,
+    for B prepared trajectories at once (arrays stacked on axis 0). The paper's terms only:
+    at zero speed the regularised sign has slope 1/eps, so b/eps acts as a viscous coefficient."""
+    _, _, index = _template(lay)
+    col = {name: k for k, name in enumerate(kernel.RV_NAMES)}
+    par = {name: slots[name] for term, (_, slots) in index.items() for name in slots
+           if term in ("transmission_friction", "roller_friction", "rolling_resistance")}
+    g = lambda name: rv[:, col[name], None]  # noqa: E731
+    q = lambda name: P[:, par[name], None]  # noqa: E731
+    FN = rv[:, [col["FN1"], col["FN2"], col["FN3"], col["FN4"]]]
+    d_w = g("eta") * g("k_t") * g("k_e") / g("R_a") + (1 + q("c") * FN) * (q("a") + q("b") / g("sign_width_phi"))
+    lam = np.empty(rv.shape[0])
+    upside = rv[:, col["mode"]] != 0.0
+    if upside.any():
+        lam[upside] = d_w[upside].max(axis=1) / rv[upside, col["I_w"]]
+    ground = ~upside
+    if ground.any():
+        gr = lambda a: a[ground]  # noqa: E731
+        dw = gr(d_w) + gr(FN) * gr(q("C_r")) * gr(g("r")) / gr(g("sign_width_phi"))
+        dr = (1 + gr(q("c_r")) * gr(FN)) * (gr(q("a_r")) + gr(q("b_r")) / gr(g("sign_width_sigma")))
+        K = (np.einsum("bji,bj,bjk->bik", gr(Rm), dw, gr(Rm))
+             + np.einsum("bji,bj,bjk->bik", gr(Sm), dr, gr(Sm)))
+        lam[ground] = np.real(np.linalg.eigvals(np.linalg.solve(gr(M), K))).max(axis=1)
+    return lam
 
 
 def stable_substeps(lam: float, dt: float, method: str = DEFAULT_METHOD) -> int:
@@ -202,7 +246,7 @@ def simulate_batch(
         raise ValueError("robots and scenarios must have the same length (or length 1)")
     lay = layout()
     mod = kernel.load_kernel(lay)
-    preps = [prepare(r, s, lay) for r, s in zip(robots, scenarios)]
+    preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
     n_steps = int(round(t_end / dt))
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
@@ -211,12 +255,14 @@ def simulate_batch(
         raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     # sub-steps per trajectory: a stiff parameter set does not slow the others down, and a
     # trajectory gives the same numbers alone or inside any batch
+    stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
+    X0, RV, P, EN, Rm, Sm, Minv, M = (stack(n) for n in ("x0", "rv", "P", "EN", "Rm", "Sm", "Minv", "M"))
     if substeps:
         sub = np.array([int(substeps)], dtype=np.int64)
     else:
-        sub = np.array([stable_substeps(p.substeps_lambda, dt, method) for p in preps], dtype=np.int64)
+        lam = _stiffness_many(RV, P, Rm, Sm, M, lay)
+        sub = np.array([stable_substeps(x, dt, method) for x in lam], dtype=np.int64)
     n_rec = n_steps // record_every + 1
-    stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
     columns = signal_names(lay)
     REC = np.zeros((B, n_rec, len(columns)))
     # hand out trajectories in small chunks, so that a thread slowed by other work on the
@@ -224,8 +270,7 @@ def simulate_batch(
     previous = numba.get_parallel_chunksize()
     numba.set_parallel_chunksize(max(1, B // (16 * numba.get_num_threads())))
     try:
-        mod.run(stack("x0"), stack("rv"), stack("P"), stack("EN"), stack("Rm"), stack("Sm"), stack("Minv"),
-                stack("M"), idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
+        mod.run(X0, RV, P, EN, Rm, Sm, Minv, M, idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
     finally:
         numba.set_parallel_chunksize(previous)
     t = np.arange(n_rec) * record_every * dt
