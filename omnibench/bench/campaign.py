@@ -45,8 +45,8 @@ def procedure_files(folder: Path | None) -> dict[str, Path]:
 
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
                  echo: Callable[[str], None] = print, progress: bool = False,
-                 ammeter: str | None = None) -> dict[str, Any]:
-    """Run the four procedures on `port`, then the analysis stages; write out/report.md."""
+                 ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS) -> dict[str, Any]:
+    """Run the four procedures on `port`, then the analysis `stages`; write out/report.md."""
     from omnibench.bench.procedure import load_plan
     from omnibench.bench.session import load_robot_file, run_command
 
@@ -69,7 +69,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
                           progress=progress, ammeter=ammeter if p == "energy_trajectories" else None)
         results["procedures"][p] = res
-    results["analysis"] = run_analysis(runs_dir, out, robot_file, echo)
+    results["analysis"] = run_analysis(runs_dir, out, robot_file, echo, stages)
     plots = make_plots(results, out, robot)
     results["plots"] = plots
     results["host_seconds"] = time.monotonic() - t0
@@ -126,7 +126,19 @@ def _options(cmd: Any) -> set[str]:
     return names
 
 
-def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Callable[[str], None]) -> dict[str, Any]:
+def parse_stages(text: str) -> tuple[str, ...]:
+    """'fit,validate-energy' -> ('fit', 'validate-energy'); 'none' -> (); UserError otherwise."""
+    if text.strip().lower() in ("none", ""):
+        return ()
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    for n in names:
+        if n not in ANALYSIS:
+            raise UserError(f"--analysis {text!r}: unknown stage {n!r}; stages are {', '.join(ANALYSIS)} or none")
+    return names
+
+
+def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Callable[[str], None],
+                 stages_wanted: tuple[str, ...] = ANALYSIS) -> dict[str, Any]:
     """fit, validate-energy, diagnose on the campaign's runs, each only if installed.
 
     fit writes OUT/model.toml; validate-energy and diagnose use it (or the robot file when
@@ -138,6 +150,10 @@ def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Calla
     model_file = out / "model.toml"
     model: Path = Path(robot_file) if robot_file else DEFAULT_ROBOT_FILE
     for name in ANALYSIS:
+        if name not in stages_wanted:
+            stages[name] = {"status": "skipped", "why": "not asked for (--analysis)"}
+            echo(f"== {name}: skipped (not asked for)")
+            continue
         cmd = _analysis_command(name)
         if cmd is None:
             stages[name] = {"status": "skipped", "why": f"`omnibench {name}` is not installed yet (omnibench.analysis)"}

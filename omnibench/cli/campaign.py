@@ -19,21 +19,24 @@ import click
               help="Folder holding the four procedure files (<procedure>.toml). Default: the shipped ones.")
 @click.option("--ammeter", metavar="URL", default=None,
               help="SCPI ammeter on its own serial URL for the energy runs (default: the board's sensor).")
+@click.option("--analysis", "analysis", default="fit,validate-energy,diagnose", show_default=True,
+              metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, as_json: bool) -> None:
+            ammeter: str | None, analysis: str, as_json: bool) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
-    from omnibench.bench.campaign import run_campaign
+    from omnibench.bench.campaign import parse_stages, run_campaign
 
     def echo(line: str) -> None:
         click.echo(line, err=as_json)
 
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
-                       progress=not as_json and sys.stderr.isatty(), ammeter=ammeter)
+                       progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
+                       stages=parse_stages(analysis))
     if as_json:
         from omnibench.runs.store import json_ready
 
