@@ -242,3 +242,27 @@ def test_resume_refuses_complete_and_foreign_runs(capsys, tmp_path):
     assert code == 2 and "is a forward_runs run" in err
     code, _, err = omnibench(capsys, "sweep", "--port", "sim://", "--resume", str(tmp_path))
     assert code == 2 and "not a run directory" in err
+
+
+def test_killed_process_leaves_a_readable_incomplete_run_that_resumes(tmp_path):
+    """SIGKILL (no chance to clean up): the run reads as `running`, keeps its flushed samples,
+    and --resume completes it."""
+    out = tmp_path / "runs"
+    cmd = [sys.executable, "-m", "omnibench", "sweep", "--port", "sim://?clock=realtime&seed=4",
+           "--procedure", str(PROC / "sigint_sweep.toml"), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _wait_rows(out, 60, proc)
+    proc.kill()
+    proc.wait(timeout=30)
+    (run_dir,) = list(out.iterdir())
+    run = read_run(run_dir)
+    assert run.status == "running" and run.metadata["ended"] is None
+    assert len(run.samples) >= 60
+    n = len(run.samples)
+    res = subprocess.run([sys.executable, "-m", "omnibench", "sweep", "--port", "sim://?seed=4", "--resume",
+                          str(run_dir), "--json"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    run = read_run(run_dir)
+    assert run.status == "complete" and list(run.steps["step"]) == list(range(8))
+    assert len(run.samples) > n
+    assert [s["previous_status"] for s in run.metadata["segments"][1:]] == ["running"]
