@@ -308,15 +308,16 @@ class SimBoard:
         s = self.plant.state
         counts = self.sensors.encoder_counts(s.phi) - self.encoder_offset
         counts = ((counts + 2**31) % 2**32) - 2**31  # int32 counters wrap
-        cur = self.sensors.motor_current(s.motor_current)
+        cur = np.clip(np.round(self.sensors.motor_current(s.motor_current) * 1000), -32768, 32767)
+        duty = np.clip(np.round(self.duties * DUTY_FULL_SCALE), -DUTY_FULL_SCALE, DUTY_FULL_SCALE)
         return {
             "time": self._time_raw(),
-            "encoder": [int(c) for c in counts],
-            "motor_current": [_clip_int(i * 1000, -32768, 32767) for i in cur],
+            "encoder": counts.astype(np.int64).tolist(),
+            "motor_current": cur.astype(np.int64).tolist(),
             "battery_voltage": _clip_int(self.sensors.battery_voltage(s.V_batt) * 1000, 0, 65535),
             "battery_current": _clip_int(self.sensors.battery_current(s.I_batt) * 1000, -32768, 32767),
             "faults": self.faults & 0xFF,
-            "duty": [_clip_int(d * DUTY_FULL_SCALE, -DUTY_FULL_SCALE, DUTY_FULL_SCALE) for d in self.duties],
+            "duty": duty.astype(np.int64).tolist(),
         }
 
     def encode_tx(self, name: str, raw: dict[str, Any]) -> bytes:

@@ -7,12 +7,23 @@ milliseconds per call, far more than the physics of a 5 ms telemetry period.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import numba
 import numpy as np
 
 from omnibench.model import Scenario, Simulator
+
+
+_single = threading.local()
+
+
+def _single_threaded() -> None:
+    """numba.set_num_threads(1) once per calling thread (the setting is thread-local)."""
+    if not getattr(_single, "done", False):
+        numba.set_num_threads(1)
+        _single.done = True
 
 
 class Plant:
@@ -23,7 +34,7 @@ class Plant:
     """
 
     def __init__(self, robot, scenario: Scenario, dt: float = 1e-3) -> None:
-        numba.set_num_threads(1)
+        _single_threaded()
         self.robot = robot
         self.sim = Simulator(robot, scenario, dt=dt)
         self.t0 = 0.0  # board time at which the simulator's t was 0
@@ -38,7 +49,7 @@ class Plant:
         """Integrate up to board time `t` (s) holding `duties` (4, in [-1, 1])."""
         dur = t - self.t0 - self.sim.t
         if dur >= 0.5 * self.sim.dt:
-            numba.set_num_threads(1)  # per thread; see the module docstring
+            _single_threaded()  # see the module docstring
             self.state = self.sim.advance(duties, dur)
 
     def set_world(self, mode: str | None = None, payload: float | None = None,
