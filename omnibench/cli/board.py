@@ -72,7 +72,7 @@ def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) 
         t_wall = time.monotonic()
         for s in board.samples(duration):
             n += 1
-            if s.t < next_print:
+            if s.t < next_print - 1e-9:
                 continue
             next_print = s.t + every
             faults = board.fault_names(s.faults)
