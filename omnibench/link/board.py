@@ -340,7 +340,7 @@ class Board:
                     continue
                 # No telemetry (ACKs of heartbeat PINGs do not count): probe once with
                 # HELLO_REQ (a board that reset answers with a new boot id), then give up.
-                if probe_at is None and now - last_tel_wall > STALL_S:
+                if probe_at is None and now - last_tel_wall > max(STALL_S, 3.0 / self._telemetry_hz):
                     probe_at = now
                     self._send("HELLO_REQ")
                 elif probe_at is not None and now - probe_at > PROBE_S:
