@@ -52,7 +52,6 @@ class Serial(SerialBase):
         except UserError as exc:
             raise SerialException(str(exc)) from exc
         self.world = world
-        self._t0 = time.monotonic()
         self._wall_anchor: float | None = None
         if device == "ammeter":
             name = extra.get("board")
@@ -66,6 +65,7 @@ class Serial(SerialBase):
             registry.register(world.name, self.board)
             self.board.set_host_baud(self._baudrate)
         self._rx.clear()
+        self._t0 = time.monotonic()  # board time 0 = now (after building the board)
         self.is_open = True
 
     def close(self) -> None:
