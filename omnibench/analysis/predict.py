@@ -73,6 +73,10 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "f
     shift = max(0.0, -float(t_cmd[0]))
     sim = simulate(robot, scenario, t_cmd + shift, U, float(ts[-1]) + shift + 2 * PHYSICS_DT, dt=PHYSICS_DT)
     st = sim["t"].to_numpy() - shift
+    # Currents and voltage jump when a duty changes. With "interval_before" a sample at a change
+    # instant was read before the new command acted: take the model's value just before (one
+    # physics step earlier) for these algebraic signals; angles are continuous.
+    ta = ts - PHYSICS_DT if timing == "interval_before" else ts
     out = pd.DataFrame({"t": t})
     dts = np.diff(ts)
     for j in range(1, 5):
@@ -85,11 +89,11 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "f
         wp = np.append(np.diff(pp) / dts, np.nan)
         out[f"w{j}_meas"], out[f"w{j}_pred"] = wm, wp
         out[f"i{j}_meas"] = tr[f"i{j}"].to_numpy(dtype=float)
-        out[f"i{j}_pred"] = np.interp(ts, st, sim[f"i{j}"].to_numpy())
+        out[f"i{j}_pred"] = np.interp(ta, st, sim[f"i{j}"].to_numpy())
     out["I_batt_meas"] = tr["I_batt"].to_numpy(dtype=float)
-    out["I_batt_pred"] = np.interp(ts, st, sim["I_batt"].to_numpy())
+    out["I_batt_pred"] = np.interp(ta, st, sim["I_batt"].to_numpy())
     out["V_batt_meas"] = tr["V_batt"].to_numpy(dtype=float)
-    out["V_batt_pred"] = np.interp(ts, st, sim["V_batt"].to_numpy())
+    out["V_batt_pred"] = np.interp(ta, st, sim["V_batt"].to_numpy())
     E = np.interp(ts, st, sim["E_batt"].to_numpy())
     out["E_pred"] = E - E[0]
     return out

@@ -61,16 +61,43 @@ def test_validate_energy_json(tmp_path, truth, capsys):
     assert (tmp_path / "fig" / "energy_current.png").exists()
 
 
-def test_bad_input_is_one_line_and_nonzero(tmp_path, real_runs):
+def test_bad_input_is_one_line_and_nonzero(tmp_path, real_runs, capsys):
     cases = [
-        ["fit", str(tmp_path / "missing")],
-        ["validate-energy", "--model", str(tmp_path / "none.toml"), str(real_runs["results_jacked"])],
-        ["fit", str(real_runs["square_fast"]), "--out", str(tmp_path / "m.toml")],
-        ["fit", str(real_runs["results_jacked"]), "--free", "a,zeta", "--out", str(tmp_path / "m.toml")],
+        (["fit", str(tmp_path / "missing")], "no such run directory"),
+        (["validate-energy", "--model", str(tmp_path / "none.toml"), str(real_runs["results_jacked"])],
+         "model file not found"),
+        (["fit", str(real_runs["square_fast"]), "--out", str(tmp_path / "m.toml")], "nothing to fit"),
+        (["fit", str(real_runs["results_jacked"]), "--free", "a,zeta", "--out", str(tmp_path / "m.toml")],
+         "cannot fit 'zeta'"),
+        (["validate-energy", "--model", str(real_runs["results_jacked"] / "run.json"), str(real_runs["results_jacked"])],
+         "not valid TOML"),
     ]
-    for args in cases:
-        p = subprocess.run([sys.executable, "-m", "omnibench", *args], capture_output=True, text=True, timeout=120)
-        assert p.returncode != 0, args
-        lines = p.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("omnibench: error:"), p.stderr
-        assert "Traceback" not in p.stderr
+    for args, message in cases:
+        code, out, err = _run(args, capsys)
+        assert code != 0, args
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("omnibench: error:") and message in lines[0], err
+    # and end to end in a fresh process: no traceback
+    p = subprocess.run([sys.executable, "-m", "omnibench", *cases[0][0]], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "Traceback" not in p.stderr
+
+
+def test_energy_runs_of_the_simulated_board_match_the_model(tmp_path, robot, capsys):
+    """End to end: omnibench energy on sim:// (the board's timing, sensors and protocol), then
+    validate-energy with the robot the simulated board carries."""
+    code, out, err = _run(["energy", "--port", "sim://", "--out", str(tmp_path / "runs"), "--json"], capsys)
+    assert code == 0, err
+    model = tmp_path / "omnibot.toml"
+    from omnibench.model.robot import DEFAULT_ROBOT_FILE
+
+    model.write_text(DEFAULT_ROBOT_FILE.read_text())
+    code, out, err = _run(["validate-energy", "--model", str(model), str(tmp_path / "runs"), "--json"], capsys)
+    assert code == 0, err
+    data = json.loads(out)
+    assert len(data["runs"]) == 4
+    assert data["max_abs_error_pct"] < 0.5, data
+    # a wrong model is caught
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(DEFAULT_ROBOT_FILE.read_text().replace("b = 0.5 ", "b = 0.8 "))
+    code, out, err = _run(["validate-energy", "--model", str(wrong), str(tmp_path / "runs"), "--json"], capsys)
+    assert json.loads(out)["mean_abs_error_pct"] > 3

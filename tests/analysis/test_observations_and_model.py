@@ -60,18 +60,25 @@ def _write_energy_run(tmp_path, truth):
 
     t_cmd = [0.0, 1.0, 2.0]
     U = [[0.3, 0.3, 0.3, 0.3], [-0.3, 0.3, 0.3, -0.3], [0.0, 0.0, 0.0, 0.0]]
-    sim = simulate(truth, Scenario(), t_cmd, U, 2.5, record_every=10)
+    sim = simulate(truth, Scenario(), t_cmd, U, 2.5)  # 1 ms records
     w = RunWriter.create(tmp_path, "energy_trajectories", counts_per_rev=truth.counts_per_rev)
+    V, I, T = [], [], []
     with w:
-        for n, row in sim.iterrows():
+        for n in range(0, len(sim), 10):  # 100 Hz telemetry
+            row = sim.iloc[n]
+            # a sample is read before the command it triggers acts (at t = 0: the robot at rest)
+            before = sim.iloc[n - 1] if n else {"V_batt": truth.V_batt, "I_batt": truth.I_0}
             # like an omnibench board: each sample reports the duty that acted over the interval before it
             k = min(int(np.searchsorted(t_cmd, row["t"] - 1e-9, side="right")) - 1, 2)
             u = U[k] if k >= 0 else [0.0] * 4
             w.sample({"step": 0, "t": 10.0 + row["t"], "seq": n, **{f"u{j + 1}": u[j] for j in range(4)},
                       **{f"enc{j + 1}": int(math.floor(row[f"phi{j + 1}"] * truth.counts_per_rev / (2 * math.pi)))
                          for j in range(4)},
-                      "V_batt": row["V_batt"], "I_batt": row["I_batt"]})
-        E = float(np.trapezoid(sim["V_batt"] * sim["I_batt"], sim["t"]))
+                      "V_batt": before["V_batt"], "I_batt": before["I_batt"]})
+            V.append(before["V_batt"])
+            I.append(before["I_batt"])
+            T.append(row["t"])
+        E = float(np.trapezoid(np.array(V) * np.array(I), np.array(T)))
         w.step_complete({"step": 0, "trajectory": "forward_then_left", "duration": 2.0, "payload": 0.0,
                          "t_start": 10.0, "t_end": 12.5, "energy": E, "has_current": True})
     return w.path, E
