@@ -149,7 +149,8 @@ def test_ammeter_errors_are_one_line() -> None:
         open_ammeter("sim://ammeter?board=nobody-here")
 
 
-def _cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run the CLI in a subprocess (the timeout guards against a hang; a cold numba compile is slow)."""
     return subprocess.run([sys.executable, "-m", "omnibench", *args], capture_output=True, text=True, timeout=timeout)
 
 
