@@ -313,6 +313,7 @@ class _Problem:
         self.nfev = 0
         self._cache: tuple[np.ndarray, np.ndarray] | None = None
         self._jcache: tuple[np.ndarray, np.ndarray] | None = None
+        self._zero_blocks: dict[tuple, set[int]] | None = None
 
     def robot_at(self, x: np.ndarray) -> Any:
         return with_params(self.robot, {p: float(v) for p, v in zip(self.free, x * self.scale)})
@@ -342,7 +343,17 @@ class _Problem:
             xp = x.copy()
             xp[j] += FD_STEP
             xs.append(xp)
-        F = self.predict(xs)
+        robots = [self.robot_at(xi) for xi in xs]
+        self.nfev += len(robots)
+        F = self.pred.predict(robots, substeps=self._sub(robots), same_as_first=self._zero_blocks)
+        if self._zero_blocks is None:
+            # (group, parameter) pairs whose predictions did not move at all: the group does not
+            # depend on the parameter (e.g. roller friction in straight runs, rolling resistance
+            # upside down); later Jacobians skip simulating them
+            blocks: dict[tuple, set[int]] = {}
+            for key, idx in self.pred.group_entries().items():
+                blocks[key] = {1 + j for j in range(len(x)) if np.array_equal(F[1 + j, idx], F[0, idx])}
+            self._zero_blocks = blocks
         self._cache = (x.copy(), F[0])
         cols = [(F[1 + j] - F[0]) / FD_STEP for j in range(len(x))]
         J = -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None]

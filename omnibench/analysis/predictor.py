@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -224,19 +224,37 @@ class Predictor:
                     lam = max(lam, prepare(r, s).substeps_lambda)
         return stable_substeps(lam, PHYSICS_DT)
 
-    def predict(self, robots: Sequence[Any], *, substeps: int | None = None) -> np.ndarray:
-        """Predictions (len(robots), len(self)) of every entry, one simulate_batch call per group."""
+    def group_entries(self) -> dict[tuple, np.ndarray]:
+        """Entry indices each simulation group predicts."""
+        out = {}
+        for key, g in self.groups.items():
+            out[key] = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
+        return out
+
+    def predict(self, robots: Sequence[Any], *, substeps: int | None = None,
+                same_as_first: Mapping[tuple, set[int]] | None = None) -> np.ndarray:
+        """Predictions (len(robots), len(self)) of every entry, one simulate_batch call per group.
+
+        same_as_first: {group key: robot indices} whose predictions in that group are known to
+        equal robot 0's (a parameter the group does not depend on); they are not simulated."""
         P = len(robots)
         out = np.full((P, len(self.entries)), np.nan)
-        for g in self.groups.values():
+        for key, g in self.groups.items():
             t_cmd, U, shift, t_end = g.built()
             n = U.shape[0]
-            rob = [r for r in robots for _ in range(n)]
-            res = simulate_batch(rob, g.scen * P, t_cmd, np.concatenate([U] * P), t_end, dt=PHYSICS_DT,
-                                 record_every=g.record_every, substeps=substeps)
-            for p in range(P):
+            skip = (same_as_first or {}).get(key, set())
+            sims = [p for p in range(P) if p == 0 or p not in skip]
+            rob = [robots[p] for p in sims for _ in range(n)]
+            res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
+                                 dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
+            for q, p in enumerate(sims):
                 for k, ex in enumerate(g.extract):
-                    self._extract(out[p], res, p * n + k, ex, shift)
+                    self._extract(out[p], res, q * n + k, ex, shift)
+            if len(sims) < P:
+                idx = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
+                for p in range(P):
+                    if p not in sims:
+                        out[p, idx] = out[0, idx]
         return out
 
     def _extract(self, out: np.ndarray, res, b: int, ex: tuple, shift: float) -> None:
