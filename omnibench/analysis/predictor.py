@@ -247,9 +247,11 @@ class Predictor:
             rob = [robots[p] for p in sims for _ in range(n)]
             res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
                                  dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
+            slopes = self._drive_slopes(g, res, shift, len(sims))
             for q, p in enumerate(sims):
                 for k, ex in enumerate(g.extract):
-                    self._extract(out[p], res, q * n + k, ex, shift)
+                    self._extract(out[p], res, q * n + k, ex, shift,
+                                  None if slopes is None else slopes[q * n + k])
             if len(sims) < P:
                 idx = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
                 for p in range(P):
@@ -257,7 +259,32 @@ class Predictor:
                         out[p, idx] = out[0, idx]
         return out
 
-    def _extract(self, out: np.ndarray, res, b: int, ex: tuple, shift: float) -> None:
+    @staticmethod
+    def _drive_slopes(g: _Group, res, shift: float, copies: int) -> np.ndarray | None:
+        """Drive speeds (B, 4) of a timed-run group: the straight-line fit of each trajectory's
+        wheel angles over its window, all trajectories sharing a window at once."""
+        if not g.extract or g.extract[0][0] not in ("forward", "lateral"):
+            return None
+        t = res.t - shift
+        cols = [res.columns.index(f"phi{j}") for j in range(1, 5)]
+        phi = res.array[:, :, cols]  # (B, n_rec, 4)
+        n = len(g.extract)
+        out = np.full((n * copies, 4), np.nan)
+        windows: dict[tuple[float, float], list[int]] = {}
+        for k, ex in enumerate(g.extract):
+            windows.setdefault(ex[2], []).append(k)
+        for (a, b), ks in windows.items():
+            sel = (t >= a - 1e-9) & (t <= b + 1e-9)
+            if sel.sum() < 3:
+                continue
+            tc = t[sel] - t[sel].mean()
+            rows = np.array([q * n + k for q in range(copies) for k in ks])
+            ph = phi[rows][:, sel, :]
+            out[rows] = np.einsum("t,btj->bj", tc, ph - ph.mean(axis=1, keepdims=True)) / float(tc @ tc)
+        return out
+
+    def _extract(self, out: np.ndarray, res, b: int, ex: tuple, shift: float,
+                 slope: np.ndarray | None = None) -> None:
         kind = ex[0]
         if kind == "sweep":
             for sig, j, k in ex[1]:
@@ -265,11 +292,13 @@ class Predictor:
                 out[k] = res.signal(name)[b, -1]
         elif kind in ("forward", "lateral"):
             idx, (a, bb) = ex[1], ex[2]
-            t = res.t - shift
-            sel = (t >= a - 1e-9) & (t <= bb + 1e-9)
-            phi = np.stack([res.signal(f"phi{j}")[b] for j in range(1, 5)], axis=1)
-            w, _ = slope_fit(t[sel], phi[sel])
-            x, y = res.signal("x")[b, -1], res.signal("y")[b, -1]
+            if slope is None:
+                t = res.t - shift
+                sel = (t >= a - 1e-9) & (t <= bb + 1e-9)
+                phi = np.stack([res.signal(f"phi{j}")[b] for j in range(1, 5)], axis=1)
+                slope, _ = slope_fit(t[sel], phi[sel])
+            w = slope
+            x, y = res.array[b, -1, res.columns.index("x")], res.array[b, -1, res.columns.index("y")]
             for sig, j, k in idx:
                 if sig == "w":
                     out[k] = w[j - 1]
