@@ -107,12 +107,14 @@ class ConsoleOperator:
     def perform(self, action: Action, step: Step | None) -> str:
         import click
 
+        click.echo("", err=True)  # off the progress bar's line
         click.confirm(f"{action.prompt}. Done?", default=True, abort=True, err=True)
         return "done"
 
     def start_mark(self, step: Step) -> str:
         import click
 
+        click.echo("", err=True)
         click.confirm("Put the robot at the start mark, facing along the marked axis. Done?",
                       default=True, abort=True, err=True)
         return "done"
@@ -120,6 +122,7 @@ class ConsoleOperator:
     def measure(self, step: Step) -> Any:
         import click
 
+        click.echo("", err=True)
         while True:
             if step.measure == "distance":
                 text = click.prompt("Distance travelled, start mark to robot (e.g. 1.23 m)", err=True)
