@@ -125,6 +125,16 @@ class SimBoard:
             ev.append(int(round(f.disconnect_at * 1e6)))
         return ev
 
+    def next_output_us(self) -> int | None:
+        """Simulated time (clock, µs) of the next scheduled TELEMETRY frame, or None.
+
+        The fast clock jumps only to these: everything else the board does on its own
+        (watchdog, scheduled faults) happens on the way, or as wall-clock time passes
+        while telemetry is off."""
+        with self.lock:
+            nt = self.next_telemetry_us
+            return None if nt is None else max(nt, self.clock_us)
+
     def next_event_us(self) -> int | None:
         """Simulated time (clock, µs) of the next thing the board will do on its own."""
         with self.lock:

@@ -9,9 +9,9 @@ simulator. URL parameters are documented in docs/simulator.md, e.g.
     sim://ammeter?board=rig1            (the SCPI ammeter on the board named rig1)
 
 Clocks: `fast` (default) moves simulated time only when the host waits in `read` for bytes
-that are not there yet: the board jumps to its next scheduled output (a telemetry frame),
-so a procedure of minutes runs in seconds and the host never loses a frame. With telemetry
-off nothing is scheduled and time follows the wall clock. `realtime` follows the wall
+that are not there yet: the board jumps to its next telemetry frame (running the watchdog
+and scheduled faults on the way), so a procedure of minutes runs in seconds and the host
+never loses a frame. With telemetry off, time follows the wall clock. `realtime` follows the wall
 clock (times `speed`).
 """
 
@@ -100,7 +100,7 @@ class Serial(SerialBase):
         """Fast clock: jump to the board's next output (True), or, with nothing
         scheduled, let simulated time follow the wall clock since the last call (False)."""
         b = self.board
-        nxt = b.next_event_us()
+        nxt = b.next_output_us()
         if nxt is not None:
             self._wall_anchor = None
             b.advance_to(max(nxt, b.clock_us))

@@ -158,7 +158,7 @@ class PtyServer:
                 self._check_baud()
                 if fast:
                     now = time.monotonic()
-                    nxt = b.next_event_us()
+                    nxt = b.next_output_us()
                     if nxt is None:
                         b.advance_to(b.clock_us + int((now - wall_anchor) * 1e6))
                     elif p.unread() == 0 and not p.pending:
@@ -178,7 +178,7 @@ class PtyServer:
                 fds = [p.master] if not self._closed_link else []
                 if self.ammeter_pty is not None:
                     fds.append(self.ammeter_pty.master)
-                if fast and b.next_event_us() is not None:
+                if fast and b.next_output_us() is not None:
                     timeout = 0.0002
                 else:
                     nxt = b.next_event_us()

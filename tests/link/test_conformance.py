@@ -49,7 +49,7 @@ class PtyTarget:
 
 @pytest.fixture(scope="module")
 def pty_server(tmp_path_factory):
-    served = spawn_server(tmp_path_factory.mktemp("pty"), "--seed", "11", "--clock", "realtime")
+    served = spawn_server(tmp_path_factory.mktemp("pty"), "--seed", "11", "--clock", "fast")
     yield served
     served.stop()
     assert served.status()["motors_stopped"] is True and served.status()["serving"] is False
