@@ -47,19 +47,29 @@ class PtyTarget:
         return self.served.status()
 
 
-@pytest.fixture(scope="module")
-def pty_server(tmp_path_factory):
-    served = spawn_server(tmp_path_factory.mktemp("pty"), "--seed", "11", "--clock", "fast")
+def _server(tmp_path_factory, clock: str):
+    served = spawn_server(tmp_path_factory.mktemp("pty"), "--seed", "11", "--clock", clock)
     yield served
     served.stop()
     assert served.status()["motors_stopped"] is True and served.status()["serving"] is False
 
 
-@pytest.fixture(params=["sim", "pty"])
+@pytest.fixture(scope="module")
+def pty_fast(tmp_path_factory):
+    yield from _server(tmp_path_factory, "fast")
+
+
+@pytest.fixture(scope="module")
+def pty_realtime(tmp_path_factory):
+    yield from _server(tmp_path_factory, "realtime")
+
+
+@pytest.fixture(params=["sim", "pty-fast", "pty-realtime"])
 def target(request):
+    """sim:// in this process; `omnibench sim serve` with its fast and its real-time clock."""
     if request.param == "sim":
         return SimTarget()
-    return PtyTarget(request.getfixturevalue("pty_server"))
+    return PtyTarget(request.getfixturevalue(request.param.replace("-", "_")))
 
 
 class TestBoardConformance:
