@@ -5,12 +5,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from omnibench.cli import main
 from omnibench.runs import read_run
 
 HERE = Path(__file__).parent
 
 
+@pytest.mark.slow
 def test_campaign_on_sim_writes_report(capsys, tmp_path):
     out = tmp_path / "campaign"
     try:

@@ -122,6 +122,7 @@ def _wait_rows(path: Path, rows: int, proc: subprocess.Popen, limit_s: float = 3
     raise AssertionError("the sweep did not record enough samples")
 
 
+@pytest.mark.slow
 def test_sigint_stops_motors_marks_aborted_and_resume_completes(tmp_path):
     seed = random.randrange(1_000_000)
     rng = random.Random(seed)
@@ -245,6 +246,7 @@ def test_resume_refuses_complete_and_foreign_runs(capsys, tmp_path):
     assert code == 2 and "not a run directory" in err
 
 
+@pytest.mark.slow
 def test_killed_process_leaves_a_readable_incomplete_run_that_resumes(tmp_path):
     """SIGKILL (no chance to clean up): the run reads as `running`, keeps its flushed samples,
     and --resume completes it."""
