@@ -210,6 +210,9 @@ class FitResult:
     fixed: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     confounded: list[dict[str, Any]] = field(default_factory=list)
+    #: per "procedure/signal" group: lag-1 autocorrelation of the residuals ordered by speed
+    #: (rho, pairs, z = rho sqrt(pairs), rms, unit); z > STRUCTURE_Z flags structure
+    structure: dict[str, dict[str, Any]] = field(default_factory=dict)
     nfev: int = 0
     date: str = ""
 
@@ -244,6 +247,8 @@ class FitResult:
             "group_s2": {k: f(v) for k, v in self.group_s2.items()},
             "runs_used": list(self.runs_used), "procedures": list(self.procedures),
             "confounded": self.confounded, "notes": list(self.notes),
+            "structure": {g: {k: (f(v) if isinstance(v, float) else v) for k, v in st.items()}
+                          for g, st in self.structure.items()},
             "error_by_procedure": {k: f(v) for k, v in _nrmse_table(self.residuals[self.residuals["used"]]).items()},
         }
 
@@ -402,6 +407,15 @@ def _fix_priority(name: str) -> int:
     return order.index(name) if name in order else len(order)
 
 
+def _add_condition(verdicts: dict[str, Verdict], name: str, reason: str) -> None:
+    """Mark `name` conditional (reasons accumulate; 'not identifiable' stays)."""
+    v = verdicts.get(name)
+    if v is None or v.status == "identified":
+        verdicts[name] = Verdict("conditional", reason)
+    elif v.status == "conditional":
+        verdicts[name] = Verdict("conditional", f"{v.reason}; {reason}")
+
+
 def _combination(weights: Mapping[str, float]) -> str:
     return " ".join(f"{'+' if w >= 0 else '-'} {abs(w):.2f} {n}" for n, w in weights.items()).lstrip("+ ")
 
@@ -462,6 +476,15 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     sigma = pred.sigma.copy()
     unknown = ~np.isfinite(sigma) | (sigma <= 0)
     groups = pred.table[["procedure", "signal"]].astype(str).agg("/".join, axis=1).to_numpy()
+    for g in np.unique(groups[used]):
+        m = (groups == g) & used
+        if unknown[m].any() and unknown[m].mean() >= 0.5:
+            # mostly without standard errors (the 2019 sweep: samples only for its last level): the few
+            # rows that have one would outweigh the rest by their encoder noise alone; treat all alike
+            unknown[groups == g] = True
+            notes.append(f"{g}: most observations carry no standard error; all weighted alike, noise "
+                         "estimated from the residual")
+    sigma[unknown] = np.nan
     for g in np.unique(groups[unknown & used]):
         m = (groups == g) & used
         vals = np.abs(pred.measured[m])
@@ -490,9 +513,9 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         why = (f"not separable: the data see only the combination {_combination(comb)} (scaled; singular value "
                f"ratio {ratio:.1e}); {p_fix} held at {param_value(robot, p_fix):.4g} {param_unit(robot, p_fix)}")
         for n in comb:
-            if n != p_fix and n not in verdicts:
-                verdicts[n] = Verdict("conditional", f"not separable from {p_fix} (held at its robot-file value "
-                                                     f"{param_value(robot, p_fix):.4g}): only {_combination(comb)} is identified")
+            if n != p_fix:
+                _add_condition(verdicts, n, f"not separable from {p_fix} (held at its robot-file value "
+                                            f"{param_value(robot, p_fix):.4g}): only {_combination(comb)} is identified")
         verdicts[p_fix] = Verdict("not identifiable", why)
         fixed.append(p_fix)
         active.remove(p_fix)
@@ -578,9 +601,9 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             names = active + [nu]
             comb = {names[i]: float(v[i]) for i in range(len(names)) if abs(v[i]) > 0.2}
             for p in comb:
-                if p in active and verdicts.get(p, Verdict("identified", "")).status == "identified":
-                    verdicts[p] = Verdict(
-                        "conditional",
+                if p in active:
+                    _add_condition(
+                        verdicts, p,
                         f"not separable from {nu} (fixed at {param_value(robot, nu):.4g} {param_unit(robot, nu)}): "
                         f"the data see only {_combination(comb)} (singular value ratio {ratio:.1e})"
                         + ("; log the motor current to separate friction from the back-EMF damping "
@@ -597,15 +620,53 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     if s2 > 4:
         notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
                      "something (see residuals / omnibench diagnose); intervals are widened by s")
+    structure = residual_structure(residuals)
+    for g, st in structure.items():
+        if st["z"] > STRUCTURE_Z:
+            notes.append(f"{g}: residuals are smooth along speed (lag-1 autocorrelation {st['rho']:.2f} over "
+                         f"{st['pairs']} neighbour pairs, {st['z']:.1f} sigma above noise): structure the model "
+                         f"misses (residual RMS {st['rms']:.3g} {st['unit']}; see the residual plot, "
+                         "omnibench diagnose)")
     return FitResult(
         robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
         cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),
         condition_number=cond_req, rank=rank_req, identifiable=verdicts, residuals=residuals, chi2=chi2, dof=dof,
         runs_used=runs_used, procedures=procs, s2=s2, group_s2=group_s2,
         initial={p: param_value(robot, p) for p in free},
-        fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev,
+        fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
         date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     )
+
+
+#: Residual smoothness (z of the lag-1 autocorrelation) above which a group is flagged as structured.
+STRUCTURE_Z = 3.0
+
+
+def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """Does a residual group look like noise? Within each (wheel, load, direction) series, residuals
+    are ordered by speed; the pooled lag-1 autocorrelation rho of neighbours is ~N(0, 1/pairs) for
+    white noise, while a missing effect (deadband, Stribeck, a per-wheel offset) makes neighbours
+    alike: z = rho sqrt(pairs) > STRUCTURE_Z flags it. Works without known noise levels."""
+    out: dict[str, dict[str, Any]] = {}
+    df = residuals[residuals["used"] & np.isfinite(residuals["residual"])]
+    for (proc, sig), g in df.groupby(["procedure", "signal"], sort=False):
+        z = np.where(np.isfinite(g["normalised"]), g["normalised"], g["residual"]).astype(float)
+        g = g.assign(_z=z - z.mean(), _F=g["F_N"].round(6).fillna(-1.0), _d=np.sign(g["speed"].fillna(0.0)))
+        num = den = 0.0
+        pairs = 0
+        for _, h in g.groupby(["wheel", "_F", "_d"], sort=False):
+            v = h.sort_values("speed")["_z"].to_numpy()
+            if len(v) < 3:
+                continue
+            num += float(np.sum(v[1:] * v[:-1]))
+            den += float(np.sum(v * v))
+            pairs += len(v) - 1
+        if pairs < 5 or den <= 0:
+            continue
+        rho = num / den
+        out[f"{proc}/{sig}"] = {"rho": rho, "pairs": pairs, "z": rho * math.sqrt(pairs),
+                                "rms": float(np.sqrt(np.mean(g["residual"] ** 2))), "unit": str(g["unit"].iloc[0])}
+    return out
 
 
 def fit_per_wheel(robot: Any, obs: Observations, free: Sequence[str] = ("a", "b", "c")) -> dict[int, FitResult]:

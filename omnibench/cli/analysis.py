@@ -116,7 +116,10 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
                     vals.append(f"{p} = {r.values[p]:.4g} +/- {r.se[p]:.2g}" + (" (conditional)" if v.status == "conditional" else ""))
                 else:
                     vals.append(f"{p}: not identifiable")
-            click.echo(f"  wheel {j}: " + ", ".join(vals) + f"; chi2/dof {r.s2:.3g}")
+            st = r.structure.get("sweep/omega")
+            smooth = (f", residual smoothness {st['z']:.1f} sigma" + (" (structured)" if st["z"] > 3 else "")
+                      if st else "")
+            click.echo(f"  wheel {j}: " + ", ".join(vals) + f"; chi2/dof {r.s2:.3g}{smooth}")
         reasons = {p: r.identifiable[p].reason for r in wheels.values() for p in r.free
                    if not r.identifiable[p].ok}
         for p, why in reasons.items():

@@ -28,6 +28,8 @@ def test_campaign_fit_recovers_every_parameter_within_3_se(campaign_fit, truth):
     # the start values were the robot file's placeholders, far from the truth
     assert abs(res.initial["C_r"] - truth.C_r) > 10 * res.se["C_r"]
     assert 0.3 < res.s2 < 3.0  # the reported noise explains the residual
+    assert res.structure and all(abs(st["z"]) < 3 for st in res.structure.values()), res.structure
+    assert not any("structure the model misses" in n for n in res.notes)
     np.testing.assert_allclose(np.diag(res.corr.to_numpy()), 1.0)
     assert set(res.runs_used) == {r for r in campaign_fit.residuals["run"].unique() if not r.startswith("sim-energy")}
 
