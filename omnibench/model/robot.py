@@ -62,7 +62,10 @@ FIELDS: dict[str, FieldSpec] = {
     "sign_width_sigma": FieldSpec("numerics", "m/s"),
 }
 
-SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects"})
+# Tables a model file adds beside the robot's (who fitted what, from which runs); the robot
+# loader accepts and ignores them, so a fitted model works wherever a robot file does.
+PROVENANCE_SECTIONS = ("fit", "diagnosis")
+SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects", *PROVENANCE_SECTIONS})
 
 
 @dataclass(frozen=True)
@@ -206,7 +209,7 @@ def robot_from_dict(data: Mapping[str, Any], *, path: str = "<robot>", text: str
         if key not in SECTIONS:
             hint = difflib.get_close_matches(key, SECTIONS, n=1)
             reader.fail(None, key, "unknown section" + (f" (did you mean [{hint[0]}]?)" if hint else f"; sections are {', '.join(SECTIONS)}"))
-        if key == "effects":
+        if key == "effects" or key in PROVENANCE_SECTIONS:
             continue
         if not isinstance(raw, dict):
             reader.fail(None, key, f"[{key}] must be a table")

@@ -89,3 +89,10 @@ def test_robot_round_trips_through_its_toml_dict(omnibot, tmp_path):
     path = tmp_path / "copy.toml"
     path.write_text(tomli_w.dumps(omnibot.to_toml_dict()))
     assert load_robot(path) == omnibot
+
+
+def test_a_model_file_with_provenance_tables_loads_as_a_robot(omnibot, tmp_path):
+    """A fitted model = robot tables + [fit]/[diagnosis] provenance; load_robot accepts it."""
+    path = tmp_path / "model.toml"
+    path.write_text(DEFAULT_ROBOT_FILE.read_text() + '\n[fit]\nruns = ["a"]\n[fit.a]\nvalue = 0.01\nse = 0.001\n')
+    assert load_robot(path) == omnibot
