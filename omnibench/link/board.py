@@ -458,6 +458,10 @@ class Board:
         try:
             n = self._port.in_waiting
             data = self._port.read(n) if n else (self._port.read(1) if wait else b"")
+            if data and not n:
+                n = self._port.in_waiting  # the rest of the frame that byte began
+                if n:
+                    data += self._port.read(n)
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # pyserial raises TypeError/AttributeError when the device vanished under it.
             raise self._lost(f"read failed: {exc}") from None
