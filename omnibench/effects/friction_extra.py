@@ -6,7 +6,7 @@ positive in the sense of positive wheel speed. `sign_eps` is the model's regular
 
   stribeck_friction   tau = -(1 + c_s F_N) b_s exp(-(phi_dot / w_s)^2) sign(phi_dot)   (sign rounded over max(eps, w_s/2))
   asymmetric_coulomb  tau = -db |sign(phi_dot)|        (Coulomb b + db forward, b - db backward)
-  per_wheel_friction  tau_i = -db_i sign(phi_dot_i)    (one gearbox stiffer than the others)
+  per_wheel_friction  tau_i = -(da_i phi_dot_i + db_i sign(phi_dot_i))   (one gearbox stiffer than the others)
   quadratic_drag      tau = -d_q |phi_dot| phi_dot     (lubricant churning, motor fan windage)
   cogging_torque      tau = -A_c sin(n_c phi + phase)  (conservative ripple: cogging, roller hand-over)
 
@@ -52,11 +52,11 @@ def asymmetric_coulomb_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
 
 @njit(cache=True)
 def per_wheel_friction_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
-    """-db_i sign(phi_dot_i): extra Coulomb friction of each wheel's gearbox, N m."""
+    """-(da_i phi_dot_i + db_i sign(phi_dot_i)): extra friction of each wheel's gearbox, N m."""
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
-        if p[j] != 0.0:
-            out[j] = -p[j] * sign_eps(phi_dot[j], eps)
+        if p[j] != 0.0 or p[4 + j] != 0.0:
+            out[j] = -p[4 + j] * phi_dot[j] - p[j] * sign_eps(phi_dot[j], eps)
 
 
 @njit(cache=True)
@@ -112,14 +112,19 @@ per_wheel_friction = register(
     Term(
         name="per_wheel_friction",
         title="Per-wheel friction differences",
-        doc="tau_i = -db_i sign(phi_dot_i): each wheel's gearbox has its own extra dry friction "
-        "on top of the common b (assembly, wear, grease). Only differences between wheels are "
-        "identifiable beside b: diagnosis fits db_2..db_4 with wheel 1 as the reference.",
+        doc="tau_i = -(da_i phi_dot_i + db_i sign(phi_dot_i)): each wheel's gearbox has its own "
+        "extra viscous and dry friction on top of the common a, b (assembly, wear, grease). Only "
+        "differences between wheels are identifiable beside a and b: diagnosis fits da_2..da_4 and "
+        "db_2..db_4 with wheel 1 as the reference.",
         params=(
             Param("db_1", "N*m", 0.0, "extra Coulomb torque of wheel 1 (front left)", -1.0, 1.0),
             Param("db_2", "N*m", 0.0, "extra Coulomb torque of wheel 2 (front right)", -1.0, 1.0),
             Param("db_3", "N*m", 0.0, "extra Coulomb torque of wheel 3 (rear left)", -1.0, 1.0),
             Param("db_4", "N*m", 0.0, "extra Coulomb torque of wheel 4 (rear right)", -1.0, 1.0),
+            Param("da_1", "N*m*s/rad", 0.0, "extra viscous friction of wheel 1", -0.2, 0.2),
+            Param("da_2", "N*m*s/rad", 0.0, "extra viscous friction of wheel 2", -0.2, 0.2),
+            Param("da_3", "N*m*s/rad", 0.0, "extra viscous friction of wheel 3", -0.2, 0.2),
+            Param("da_4", "N*m*s/rad", 0.0, "extra viscous friction of wheel 4", -0.2, 0.2),
         ),
         hooks={"wheel_torque": per_wheel_friction_torque},
         reveals="upside_down_sweep (residual differs by wheel, same sign at every duty)",

@@ -70,10 +70,13 @@ EFFECTS: dict[str, Effect] = {
                       "floor_slope": "run the sweep upside down (a slope cannot act there, gearbox "
                       "asymmetry does) or repeat the forward runs with a payload (the slope force grows "
                       "with the mass) or turned round on the floor"}),
-        _E("per_wheel_friction", fit=("db_2", "db_3", "db_4"),
-           example={"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05},
-           start={"db_2": 0.0, "db_3": 0.0, "db_4": 0.0}, procedures=("upside_down_sweep",),
-           variable="wheel"),
+        _E("per_wheel_friction", fit=("db_2", "db_3", "db_4", "da_2", "da_3", "da_4"),
+           example={"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05,
+                    "da_1": 0.0, "da_2": 0.003, "da_3": -0.002, "da_4": 0.0},
+           start={p: 0.0 for p in ("db_2", "db_3", "db_4", "da_2", "da_3", "da_4")},
+           procedures=("upside_down_sweep",), variable="wheel",
+           separates={"asymmetric_coulomb": "run the sweep in both directions",
+                      "com_offset": "run the sweep upside down (no load distribution there)"}),
         _E("quadratic_drag", fit=("d_q",), example={"d_q": 1.5e-3}, start={"d_q": 1e-4},
            procedures=("upside_down_sweep",), variable="speed"),
         _E("cogging_torque", fit=("A_c",), example={"A_c": 0.3}, start={"A_c": 0.05},

@@ -109,8 +109,9 @@ UPSIDE_CASES = {
     "stribeck_friction": ({"b_s": 0.25, "w_s": 1.0, "c_s": 0.01},
                           lambda w, j, F: -(1 + 0.01 * F) * 0.25 * math.exp(-w * w) * _sgn(w, 0.5)),
     "asymmetric_coulomb": ({"db": 0.06}, lambda w, j, F: -0.06 * abs(_sgn(w, 0.1))),
-    "per_wheel_friction": ({"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05},
-                           lambda w, j, F: -(0.0, 0.08, -0.06, 0.05)[j] * _sgn(w, 0.1)),
+    "per_wheel_friction": ({"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05,
+                            "da_1": 0.002, "da_2": 0.0, "da_3": -0.003, "da_4": 0.001},
+                           lambda w, j, F: -(0.0, 0.08, -0.06, 0.05)[j] * _sgn(w, 0.1) - (0.002, 0.0, -0.003, 0.001)[j] * w),
     "quadratic_drag": ({"d_q": 1.5e-3}, lambda w, j, F: -1.5e-3 * abs(w) * w),
 }
 

@@ -13,8 +13,8 @@ Algorithm (docs/diagnose.md has the long form):
    passes p < alpha / m (m candidates tested: Bonferroni), (b) it lowers the held-out
    (K-fold over run steps) weighted error by more than 2 per parameter, (c) its fitted values
    are inside their physical range (not on a bound), and (d) it removes at least half of the
-   residual structure of some procedure/signal group without adding structure overall
-   (otherwise it only leans on structure something else makes: reported, not added). Among those, the lowest AIC wins; others within AMBIGUOUS of it
+   strength (-log10 p) of some significant residual structure (a procedure/signal group against
+   one variable); otherwise it only leans on structure something else makes: reported, not added. Among those, the lowest AIC wins; others within AMBIGUOUS of it
    are reported as not separable with these data, with the experiment that would separate them.
 5. Add the winner, refit, repeat until nothing earns its place (or `max_effects`).
 6. Report what structure remains, and the held-out error before and after per procedure.
@@ -37,6 +37,8 @@ ALPHA = 1e-3  # family-wise level for adding an effect
 AMBIGUOUS = 10.0  # AIC difference below which two candidates are not told apart
 PARTIAL = 0.5  # a candidate must remove at least this fraction of the residual structure
 SCREEN_FRACTION = 0.5  # screen LR below this fraction of the add threshold: not refitted
+WORSE = 0.05  # no procedure's held-out error may end more than this fraction above the declared model's
+MAX_FITS = 6  # refits per round when the top_k all fail
 RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
 
 
@@ -180,22 +182,23 @@ def _score(findings: Sequence[structure.Finding], n_tests: int) -> float:
     return float(sum(f.score for f in structure.significant(list(findings), n_tests)))
 
 
-def _group_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict[str, float]:
-    out: dict[str, float] = {}
+def _finding_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict[tuple[str, str], float]:
+    """Score of the strongest significant finding per (group, variable)."""
+    out: dict[tuple[str, str], float] = {}
     for f in structure.significant(list(findings), n_tests):
-        out[f.group] = out.get(f.group, 0.0) + f.score
+        key = (f.group, f.variable)
+        out[key] = max(out.get(key, 0.0), f.score)
     return out
 
 
 def _explains(before: tuple[list, int], after: tuple[list, int]) -> bool:
-    """True when the new model removes at least PARTIAL of the structure in some group that had
-    any, and does not add structure overall (or when there was no structure to remove)."""
-    b, a = _group_scores(*before), _group_scores(*after)
+    """True when the new model removes at least PARTIAL of some significant structure (a
+    procedure/signal group against one variable), or when there was none to remove. (Other
+    structure may then stand out more: the noise scale shrinks; the LR test has judged the fit.)"""
+    b, a = _finding_scores(*before), _finding_scores(*after)
     if not b:
         return True
-    if sum(a.values()) > sum(b.values()):
-        return False
-    return any(a.get(g, 0.0) <= (1 - PARTIAL) * s for g, s in b.items())
+    return any(a.get(k, 0.0) <= (1 - PARTIAL) * s for k, s in b.items())
 
 
 def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any, list[str], list[str]]:
@@ -239,6 +242,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     base_struct, n_tests = _structure_of(problem, base)
     base_sig = structure.significant(base_struct, n_tests)
     current, cur_struct, cur_ntests = base, base_struct, n_tests
+    base_err = engine.error_table(problem, engine.heldout_residuals(problem, base, fold))
     selected: list[Candidate] = []
     rejected: list[Candidate] = []
     ambiguous: list[dict[str, Any]] = []
@@ -252,11 +256,16 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
         tried: list[Candidate] = []
+        passing: list[Candidate] = []
         best_ratio = max(scr.approx_lr[e.name] / thr[e.name] for e in pool)
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
-            if len([t for t in tried if t.fitted]) < top_k and ratio >= SCREEN_FRACTION and ratio >= RELATIVE_SCREEN * best_ratio:
+            n_fitted = len([t for t in tried if t.fitted])
+            # refit the top_k; when all of those fail, keep going down the ranking (up to MAX_FITS)
+            fallback = not passing and top_k <= n_fitted < MAX_FITS
+            leading = ratio >= RELATIVE_SCREEN * best_ratio
+            if (n_fitted < top_k and leading or fallback) and ratio >= SCREEN_FRACTION:
                 say(f"round {rnd}: fitting {e.name}")
                 try:
                     cf = engine.fit_candidate(problem, current, e, scr.estimate[e.name])
@@ -270,12 +279,18 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                 c.lr, c.p = engine.lr_test(current, cf, e.n_params)
                 c.aic_drop = c.lr - 2 * e.n_params
                 w_common = current.weights(problem)
-                cv0 = engine.cv_score(problem, engine.heldout_residuals(problem, current, fold), w_common)
-                cv1 = engine.cv_score(problem, engine.heldout_residuals(problem, cf, fold, w_common), w_common)
-                c.cv_gain = cv0 - cv1
+                ho0 = engine.heldout_residuals(problem, current, fold)
+                ho1 = engine.heldout_residuals(problem, cf, fold, w_common)
+                c.cv_gain = engine.cv_score(problem, ho0, w_common) - engine.cv_score(problem, ho1, w_common)
+                e1 = engine.error_table(problem, ho1)
+                # compared with the declared model, so small losses cannot pile up round after round
+                c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err  # type: ignore[attr-defined]
+                           if p in e1 and e1[p]["nrmse"] > (1 + WORSE) * base_err[p]["nrmse"]}
                 st, nt = _structure_of(problem, cf)
                 c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
                 c._struct = (st, nt)  # type: ignore[attr-defined]
+                if _judge(c, e, alpha / m, (cur_struct, cur_ntests)):
+                    passing.append(c)
             else:
                 c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, far below the {thr[e.name]:.1f} needed"
                             if scr.approx_lr[e.name] < SCREEN_FRACTION * thr[e.name] else
@@ -283,25 +298,6 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                 if scr.approx_lr[e.name] <= 1e-12:
                     c.reason = f"not testable with these data (it does not change any prediction; shows in {', '.join(e.procedures)})"
             tried.append(c)
-        passing = []
-        for c in tried:
-            if not c.fitted:
-                continue
-            e = EFFECTS[c.name]
-            if not (c.p < alpha / m):
-                c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {alpha / m:.1e})"
-            elif _at_bound(e, c.values):
-                c.reason = (f"its fit runs to the edge of the physical range ({_at_bound(e, c.values)}): it stands in "
-                            "for something else rather than measuring itself")
-            elif not (c.cv_gain > 2 * c.q):
-                change = f"falls by {c.cv_gain:.1f}" if c.cv_gain >= 0 else f"rises by {-c.cv_gain:.1f}"
-                c.reason = f"does not earn its parameters on held-out steps (held-out weighted error {change}, needs to fall by > {2 * c.q})"
-            elif not _explains((cur_struct, cur_ntests), c._struct):  # type: ignore[attr-defined]
-                c.reason = (f"explains only part of the structure it is fitted to (score {c.structure_before:.0f} -> "
-                            f"{c.structure_after:.0f}, no group loses half of it): it leans on structure another "
-                            "mechanism makes")
-            else:
-                passing.append(c)
         if not passing:
             rejected += tried
             break
@@ -351,6 +347,28 @@ def _at_bound(effect: Effect, values: Mapping[str, float]) -> str:
             if math.isfinite(edge) and edge != 0.0 and abs(v - edge) <= 1e-3 * span:
                 return f"{full.split('.')[-1]} = {v:.4g} {spec.unit}, bound {edge:g}"
     return ""
+
+
+def _judge(c: Candidate, e: Effect, p_needed: float, before: tuple[list, int]) -> bool:
+    """Does a refitted candidate earn its place? Sets c.reason when it does not."""
+    if not (c.p < p_needed):
+        c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {p_needed:.1e})"
+    elif _at_bound(e, c.values):
+        c.reason = (f"its fit runs to the edge of the physical range ({_at_bound(e, c.values)}): it stands in "
+                    "for something else rather than measuring itself")
+    elif not (c.cv_gain > 2 * c.q):
+        change = f"falls by {c.cv_gain:.1f}" if c.cv_gain >= 0 else f"rises by {-c.cv_gain:.1f}"
+        c.reason = f"does not earn its parameters on held-out steps (held-out weighted error {change}, needs to fall by > {2 * c.q})"
+    elif getattr(c, "worse", None):
+        c.reason = "makes the held-out error worse in " + ", ".join(
+            f"{p} ({100 * a:.2f} % -> {100 * b:.2f} %)" for p, (a, b) in c.worse.items())  # type: ignore[attr-defined]
+    elif not _explains(before, c._struct):  # type: ignore[attr-defined]
+        c.reason = (f"explains none of the residual structure (score {c.structure_before:.0f} -> "
+                    f"{c.structure_after:.0f}, no structure loses half its strength): it leans on structure "
+                    "another mechanism makes")
+    else:
+        return True
+    return False
 
 
 def _lr_threshold(p: float, q: int) -> float:

@@ -252,9 +252,15 @@ class Screen:
 
 def secant_steps(effect: Effect) -> dict[str, float]:
     """Size of the step used to probe each fitted parameter (its `start`, else a quarter of the
-    realistic size)."""
-    big = max((abs(v) for v in effect.example.values()), default=1.0) or 1.0
-    return {p: (effect.start.get(p) or 0.25 * big) for p in effect.fit}
+    largest realistic size among the effect's parameters of the same unit)."""
+    out = {}
+    for p in effect.fit:
+        unit = effect.term.params[effect.term.param_names.index(p)].unit
+        same = [abs(v) for k, v in effect.example.items()
+                if effect.term.params[effect.term.param_names.index(k)].unit == unit]
+        big = max(same, default=0.0) or max((abs(v) for v in effect.example.values()), default=1.0) or 1.0
+        out[p] = effect.start.get(p) or 0.25 * big
+    return out
 
 
 def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) -> Screen:
