@@ -327,12 +327,12 @@ class Board:
         last_tel = self.stats.telemetry
         last_tel_wall = time.monotonic()
         while True:
+            while self._queue:  # yield outside the lock: the caller may do anything meanwhile
+                s = self._queue.popleft()
+                yield s
+                if s.t >= t_end:
+                    return
             with self._io:
-                while self._queue:
-                    s = self._queue.popleft()
-                    yield s
-                    if s.t >= t_end:
-                        return
                 self._pump(wait=True)
                 now = time.monotonic()
                 if self.stats.telemetry != last_tel:
