@@ -254,13 +254,14 @@ else:
     for j in range(4):
         dX[6 + j] = phid[j]
         dX[10 + j] = tau[j] / I_w
-# auxiliary signals
-for j in range(4):
-    aux[j] = cur[j]
-    aux[6 + j] = u[j]
-    aux[10 + j] = FN[j]
-aux[4] = V
-aux[5] = I_batt
+# auxiliary signals (recorded from the first stage only)
+if stage == 0:
+    for j in range(4):
+        aux[j] = cur[j]
+        aux[6 + j] = u[j]
+        aux[10 + j] = FN[j]
+    aux[4] = V
+    aux[5] = I_batt
 # ---- end of derivative ----"""
     deriv = "\n".join(line for line in deriv.splitlines() if line.strip())
     deriv = re.sub(r"\bY\[", "Xt[", deriv)  # the stage state is always in Xt

@@ -139,3 +139,23 @@ def test_substeps_respect_each_methods_stability_limit():
         for method, limit in (("heun", 2.0), ("rk4", 2.785)):
             n = stable_substeps(lam, 1e-3, method=method)
             assert lam * 1e-3 / n < limit, (scenario, method)
+
+
+@pytest.mark.parametrize("mode", ["ground", "upside_down"])
+def test_energy_balance_with_every_registered_term(mode):
+    """Every hook kind (normal force, duty, electrical, wheel torque, roller force, body force,
+    own states) goes through the generated kernel: the balance still names every joule."""
+    from omnibench.model.terms import all_terms
+
+    effects = {t.name: t.defaults() for t in all_terms() if not t.core}
+    kinds = {h for t in all_terms() for h in t.hooks}
+    robot = default_robot()
+    df = simulate(robot, Scenario(mode=mode, effects=effects), T_CMD, U_CMD, 10.0, record_every=10)
+    end, start = df.iloc[-1], df.iloc[0]
+    terms = [c for c in df.columns if c.startswith("E_") and c not in
+             ("E_batt", "E_copper", "E_conversion", "E_quiescent")]
+    accounted = (end["E_copper"] + end["E_conversion"] + end["E_quiescent"] + sum(end[t] for t in terms)
+                 + end["KE"] - start["KE"])
+    assert np.isfinite(df[["x", "y", "psi", "phi_dot1", "E_batt"]].to_numpy()).all()
+    assert end["E_batt"] > 100.0
+    assert accounted == pytest.approx(end["E_batt"], rel=1e-3), (kinds, accounted, end["E_batt"])
