@@ -120,7 +120,9 @@ def param_scale(robot: Any, name: str) -> float:
     v = abs(param_value(robot, name))
     if "." in name:
         _, _, spec = _effect_param(robot, name)
-        return max(v, abs(spec.default), 1e-6)
+        span = spec.upper - spec.lower
+        # a parameter whose natural value is 0 (an offset) is scaled by its range, not by 0
+        return max(v, abs(spec.default), 0.01 * span if math.isfinite(span) else 0.0, 1e-6)
     return max(v, TYPICAL.get(name, 1.0) * 0.1)
 
 
@@ -403,8 +405,10 @@ def _null_analysis(J: np.ndarray, names: list[str]) -> tuple[int, float, list[tu
 
 #: When a combination is invisible, which of its parameters to hold fixed first (lower first).
 def _fix_priority(name: str) -> int:
-    order = ["k_t", "eta", "R_a", "k_e", "I_0", "c", "c_r", "C_r", "a", "a_r", "b_r", "b"]
-    return order.index(name) if name in order else len(order)
+    """Motor constants first, then parameters of declared effects (they add to the paper's
+    terms), then the paper's coefficients, load factors before the friction levels."""
+    order = ["k_t", "eta", "R_a", "k_e", "I_0", "<effect>", "c", "c_r", "C_r", "a", "a_r", "b_r", "b"]
+    return order.index("<effect>" if "." in name else name) if ("." in name or name in order) else len(order)
 
 
 def _add_condition(verdicts: dict[str, Verdict], name: str, reason: str) -> None:

@@ -76,3 +76,31 @@ def test_bad_parameter_names_are_one_line_errors(robot, sweep_no_current):
         fit(robot, sweep_no_current, ["stribeck_friction.b_s"])
     with pytest.raises(UserError, match="no observations"):
         fit(robot, Observations(), ["a"])
+
+
+def test_declared_effect_parameters_are_fitted_through_the_simulator(robot):
+    """Generic over terms: a world with Stribeck friction, the robot declaring it."""
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, effects={"stribeck_friction": {"b_s": 0.2, "w_s": 1.0, "c_s": 0.01}})
+    obs = Observations.simulated(truth, seed=4, procedures=["sweep"])
+    start = robot.replace(effects={"stribeck_friction": {"b_s": 0.1, "w_s": 1.5, "c_s": 0.01}})
+    res = fit(start, obs, ["a", "b", "c", "stribeck_friction.b_s", "stribeck_friction.w_s"])
+    assert res.values["stribeck_friction.b_s"] == pytest.approx(0.2, abs=3 * res.se["stribeck_friction.b_s"])
+    assert res.values["stribeck_friction.w_s"] == pytest.approx(1.0, abs=3 * res.se["stribeck_friction.w_s"])
+    assert res.robot.effects["stribeck_friction"]["b_s"] == res.values["stribeck_friction.b_s"]
+    for p in ("a", "b", "c"):
+        assert abs(res.values[p] - getattr(truth, p)) < 3 * res.se[p]
+
+
+def test_effect_redundant_with_a_paper_term_is_held_not_the_paper_term(robot, real_runs):
+    """b plus four per-wheel Coulomb offsets: only four combinations are seen on four wheels."""
+    declared = robot.replace(effects={"per_wheel_friction": {f"db_{j}": 0.0 for j in range(1, 5)}})
+    obs = Observations.from_runs([real_runs["results_jacked"]], declared)
+    names = ["a", "b"] + [f"per_wheel_friction.db_{j}" for j in range(1, 5)]
+    res = fit(declared, obs, names)
+    held = [p for p in names if res.identifiable[p].status == "not identifiable"]
+    assert len(held) == 1 and held[0].startswith("per_wheel_friction.")
+    assert res.rank == 5 and res.identifiable["b"].ok and math.isfinite(res.se["b"])
+    # the wheels' Coulomb levels come out as b + db_j: 1 and 2 above 3 and 4 (as the per-wheel fits say)
+    level = {j: res.values["b"] + (0.0 if f"per_wheel_friction.db_{j}" in held else res.values[f"per_wheel_friction.db_{j}"])
+             for j in range(1, 5)}
+    assert min(level[1], level[2]) > max(level[3], level[4])
