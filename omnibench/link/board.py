@@ -164,6 +164,7 @@ class Board:
             return
         self._command("STOP")
         self._command("CONFIGURE", {"watchdog": self._watchdog_s, "telemetry_rate": 0})
+        self._queue.clear()  # telemetry a previous session left running is not this session's
         self._start_heartbeat()
 
     def _strict_fail_message(self) -> str:

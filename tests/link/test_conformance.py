@@ -192,3 +192,14 @@ class TestBoardConformance:
                 raise RuntimeError("procedure failed")
         st = target.status()
         assert st["motors_stopped"] and st["last_command"] == "STOP" and st["faults"] == []
+
+
+def test_reopening_drops_the_previous_sessions_telemetry(pty_fast) -> None:
+    """A session that left telemetry running does not leak samples into the next one."""
+    b1 = Board.open(pty_fast.path)
+    b1.configure(telemetry_hz=500)
+    b1.wait(0.1)
+    b1.close()  # no stop, telemetry still streaming into the pty
+    with Board.open(pty_fast.path) as b2:
+        assert b2.read_samples() == []
+        assert b2.hello.boot_id == b1.hello.boot_id  # same board, no reset
