@@ -14,7 +14,8 @@ the simulation-based fits replay:
     heading (rad), measured_forward / measured_left (m, operator's tape, body frame at the start;
     NaN if not measured), measured_se (m), enc_forward / enc_left (m, encoder displacement
     through pinv(R)), dphi1..4 (rad), w1..w4 (rad/s, mean drive speed from the encoder trace over
-    [w_t0, w_t1] s after the start), w_se1..4 (rad/s), w_t0, w_t1 (s).
+    [w_t0, w_t1] s after the start), w_se1..4 (rad/s), w_t0, w_t1 (s), time (s, board time of the
+    start).
 ``energy`` (IV; one row per trajectory)
     run, step, trajectory, duration (s), t_total (s), payload (kg), measured_J (J, trapezoid of
     V_batt I_batt over the step; NaN if no current was logged), has_current.
@@ -55,11 +56,11 @@ RUN_PROCEDURES = {
 }
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
-                 "current", "current_se", "n", "steady"]
+                 "current", "current_se", "n", "steady", "time"]
 RUN_COLUMNS = (["run", "step", "u1", "u2", "u3", "u4", "duration", "t_total", "payload", "heading",
                 "measured_forward", "measured_left", "measured_se", "enc_forward", "enc_left"]
                + [f"dphi{j}" for j in range(1, 5)] + [f"w{j}" for j in range(1, 5)]
-               + [f"w_se{j}" for j in range(1, 5)] + ["w_t0", "w_t1"])
+               + [f"w_se{j}" for j in range(1, 5)] + ["w_t0", "w_t1", "time"])
 ENERGY_COLUMNS = ["run", "step", "trajectory", "duration", "t_total", "payload", "measured_J", "has_current"]
 STEP_RESPONSE_COLUMNS = ["run", "step", "duty", "t_start", "t_end", "n"]
 TRACE_COLUMNS = ["t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4", "i1", "i2", "i3", "i4",
@@ -379,7 +380,8 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
                          "direction": float(np.sign(u)) if u else 0.0, "wheel_mass": mass,
                          "F_N": mass * GRAVITY, "omega": w, "omega_se": float(w_se[j]),
                          "current": cur, "current_se": float(i_se[j]) if math.isfinite(cur) else float("nan"),
-                         "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True})
+                         "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True,
+                         "time": _num(st.get("t_end"))})
     df = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
     return df
 
@@ -394,7 +396,7 @@ def drive_window(duration: float) -> tuple[float, float]:
 def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: float, payload: float,
               heading: float, measured_forward: float, measured_left: float, trace: pd.DataFrame | None,
               robot: Any, cpr: float, dphi: np.ndarray | None = None,
-              measured_se: float = DEFAULT_TAPE_SE) -> dict[str, Any]:
+              measured_se: float = DEFAULT_TAPE_SE, time: float = float("nan")) -> dict[str, Any]:
     """One `forward`/`lateral` row from a step's facts and its trace (t from the step start)."""
     from omnibench.model.geometry import inverse_kinematics
 
@@ -403,7 +405,7 @@ def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: fl
     row: dict[str, Any] = {"run": rid, "step": int(k), **{f"u{j + 1}": float(u[j]) for j in range(4)},
                            "duration": duration, "t_total": t_total, "payload": payload, "heading": heading,
                            "measured_forward": measured_forward, "measured_left": measured_left,
-                           "measured_se": measured_se}
+                           "measured_se": measured_se, "time": time}
     w = np.full(4, np.nan)
     w_se = np.full(4, np.nan)
     a, b = drive_window(duration)
@@ -444,5 +446,5 @@ def _run_rows(run: Any, rid: str, robot: Any, cpr: float, proc: str) -> tuple[pd
         dphi = np.array([_num(st.get(f"dphi{j}")) for j in range(1, 5)])
         payload = _num(st.get("payload")) if st.get("payload") is not None else 0.0
         rows.append(timed_row(rid, k, u, dur, _num(st.get("t_end")) - t0, payload, _num(st.get("heading")),
-                              fwd, left, tr, robot, cpr, dphi))
+                              fwd, left, tr, robot, cpr, dphi, time=t0))
     return pd.DataFrame(rows, columns=RUN_COLUMNS), traces

@@ -77,7 +77,9 @@ def plot_residuals(residuals: pd.DataFrame, folder: str | Path, name: str = "res
     """Normalised residuals (or plain residuals when sigma is unknown) against speed, load and time."""
     df = residuals[np.isfinite(residuals["residual"])].copy()
     df["z"] = np.where(np.isfinite(df["normalised"]), df["normalised"], df["residual"])
-    df["order"] = df.groupby("procedure").cumcount()
+    order = df.groupby("procedure").cumcount().to_numpy(float)
+    tm = df["time"].to_numpy(float)
+    df["order"] = np.where(np.isfinite(tm), tm, order)
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
     for k, ((proc, sig), g) in enumerate(df.groupby(["procedure", "signal"], sort=False)):
         c = f"C{k % 10}"
@@ -88,7 +90,7 @@ def plot_residuals(residuals: pd.DataFrame, folder: str | Path, name: str = "res
             ax.scatter(xv[~hollow], g["z"].to_numpy()[~hollow], s=8, color=c, label=lab)
             if hollow.any():
                 ax.scatter(xv[hollow], g["z"].to_numpy()[hollow], s=8, facecolors="none", edgecolors=c)
-    for ax, lab in zip(axes, ("speed (rad/s)", "axle load F_N (N)", "observation order (time)")):
+    for ax, lab in zip(axes, ("speed (rad/s)", "axle load F_N (N)", "board time (s; order where unknown)")):
         ax.axhline(0, color="k", lw=0.6)
         ax.set_xlabel(lab)
         ax.grid(alpha=0.3)

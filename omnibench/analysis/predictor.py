@@ -118,7 +118,8 @@ class Predictor:
             for _, r in rows.iterrows():
                 j = int(r["wheel"])
                 meta = dict(procedure="sweep", run=run, step=int(step), wheel=j, speed=r["omega"], F_N=r["F_N"],
-                            direction=r["direction"], time=np.nan, current=r["current"], u=r["u"], payload=0.0)
+                            direction=r["direction"], time=r.get("time", np.nan), current=r["current"], u=r["u"],
+                            payload=0.0)
                 k = self._add(signal="omega", unit="rad/s", measured=r["omega"], sigma=r["omega_se"], **meta)
                 idx.append(("omega", j, k))
                 if math.isfinite(r["current"]):
@@ -141,7 +142,7 @@ class Predictor:
                 t_cmd, U = np.append(t_cmd, max(tot, float(tr["t"].iloc[-1])) + RECORD_DT), np.vstack([U, np.zeros(4)])
             else:
                 t_cmd, U = np.array([0.0, dur]), np.stack([u, np.zeros(4)])
-            meta = dict(procedure=proc, run=r["run"], step=int(r["step"]), F_N=np.nan, time=np.nan,
+            meta = dict(procedure=proc, run=r["run"], step=int(r["step"]), F_N=np.nan, time=r.get("time", np.nan),
                         current=np.nan, payload=r["payload"])
             idx = []
             for j in range(1, 5):

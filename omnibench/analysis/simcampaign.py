@@ -107,7 +107,7 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
                                  "current": float(cur.mean()) if current else float("nan"),
                                  "current_se": float(max(cur.std(ddof=1), CURRENT_LSB / math.sqrt(12)) / math.sqrt(n))
                                  if current else float("nan"),
-                                 "n": n, "steady": True})
+                                 "n": n, "steady": True, "time": (s.index + 1) * SWEEP_HOLD})
             obs.sweep = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
         elif proc in ("forward", "lateral"):
             scen = [Scenario(mode="ground", payload=s.world.payload, effects=world_effects) for s in steps]
@@ -131,7 +131,8 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
                         fwd, left = x, y
                     obs.traces[(rid, s.index)] = tr
                     rows.append(timed_row(rid, s.index, s.schedule[0][1], dur, dur + settle, s.world.payload,
-                                          float(s.params.get("heading", 0.0)), fwd, left, tr, robot, cpr))
+                                          float(s.params.get("heading", 0.0)), fwd, left, tr, robot, cpr,
+                                          time=s.index * (dur + settle)))
             rows.sort(key=lambda r: r["step"])
             setattr(obs, proc, pd.DataFrame(rows, columns=RUN_COLUMNS))
         else:  # energy
