@@ -4,6 +4,12 @@ step by step for the simulated board (`Simulator`). All share one compiled kerne
 Commands are duties u in [-1, 1] per wheel, held from their time stamp until the next one
 (zero-order hold). Physics runs at `dt` (default 1 ms), sub-stepped when friction
 regularisation makes the equations stiff (see `stable_substeps`).
+
+Methods: "rk4" (classical Runge-Kutta, the default, 4 derivative evaluations per step) and
+"heun" (explicit trapezoid, 2 evaluations: about twice the throughput, for large batches).
+On the default robot's 10 s ground run at 1 ms, against RK4 with 20 sub-steps, RK4's final
+pose is off by ~1e-6 m and Heun's by ~4e-5 m / 2e-5 rad, Heun's battery energy by ~3e-5
+relative (tests/model/test_kernel_numerics.py holds these figures).
 """
 
 from __future__ import annotations
