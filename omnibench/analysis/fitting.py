@@ -648,7 +648,7 @@ STRUCTURE_Z = 3.0
 
 def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:
     """Does a residual group look like noise? Within each (wheel, load, direction) series, residuals
-    are ordered by speed; the pooled lag-1 autocorrelation rho of neighbours is ~N(0, 1/pairs) for
+    are ordered by speed (entries without a speed, e.g. displacements, by step); the pooled lag-1 autocorrelation rho of neighbours is ~N(0, 1/pairs) for
     white noise, while a missing effect (deadband, Stribeck, a per-wheel offset) makes neighbours
     alike: z = rho sqrt(pairs) > STRUCTURE_Z flags it. Works without known noise levels."""
     out: dict[str, dict[str, Any]] = {}
@@ -659,7 +659,8 @@ def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:
         num = den = 0.0
         pairs = 0
         for _, h in g.groupby(["wheel", "_F", "_d"], sort=False):
-            v = h.sort_values("speed")["_z"].to_numpy()
+            key = "speed" if np.isfinite(h["speed"].to_numpy(float)).all() else "step"  # displacements: run order
+            v = h.sort_values(key)["_z"].to_numpy()
             if len(v) < 3:
                 continue
             num += float(np.sum(v[1:] * v[:-1]))
