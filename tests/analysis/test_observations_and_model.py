@@ -117,6 +117,9 @@ def test_model_file_round_trip(tmp_path, robot, truth):
     assert info["parameters"]["b"]["se"] == pytest.approx(res.se["b"])
     assert info["parameters"]["b"]["ci95"][0] < back.b < info["parameters"]["b"]["ci95"][1]
     assert info["parameters"]["a"]["verdict"] == "identified"
+    from omnibench.model import load_robot
+
+    assert load_robot(path).b == back.b  # a model file works wherever a robot file does
     # a plain robot file is a model file without [fit]
     from omnibench.model.robot import DEFAULT_ROBOT_FILE
 
