@@ -56,7 +56,7 @@ from omnibench.analysis.predictor import Predictor
 from omnibench.errors import UserError
 
 CORE = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
-MOTOR = ("k_t", "k_e", "R_a", "eta", "I_0")
+MOTOR = ("k_t", "k_e", "R_a", "eta", "I_0", "I_w")
 FITTABLE_FIELDS = CORE + MOTOR
 #: Singular values below this fraction of the largest are directions the data cannot see.
 RANK_TOL = 1e-6
@@ -68,9 +68,9 @@ CONFOUND_TOL = 1e-3
 MIN_SWEEP_SPEED_WIDTHS = 3.0
 #: Typical magnitudes (SI) used to scale parameters and finite-difference steps.
 TYPICAL = {"a": 0.01, "b": 0.5, "c": 0.01, "a_r": 2.0, "b_r": 1.0, "c_r": 0.01, "C_r": 0.02,
-           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1}
+           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1, "I_w": 0.003}
 UNITS = {"a": "N m s/rad", "b": "N m", "c": "1/N", "a_r": "N s/m", "b_r": "N", "c_r": "1/N", "C_r": "1",
-         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A"}
+         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A", "I_w": "kg m^2"}
 FD_STEP = 1e-5  # relative (to the parameter's scale) forward-difference step
 DEFAULT_PROCEDURES = ("sweep", "forward", "lateral")
 
@@ -572,10 +572,18 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     g_used = groups[used]
     s2_row = np.empty(n_used)
     group_s2: dict[str, float] = {}
+    residuals = _residual_frame(pred, f, sigma, used)
+    structure = residual_structure(residuals)
     for g in np.unique(g_used):
         m = g_used == g
         dof_g = max(float(m.sum() - lev[m].sum()), 1.0)
         group_s2[str(g)] = float(np.sum(r[m] ** 2) / dof_g)
+        st = structure.get(str(g))
+        if st is not None and st["z"] > STRUCTURE_Z and 0 < st["rho"] < 1:
+            # residuals that are smooth along speed carry fewer independent pieces of information
+            # than entries: an AR(1) effective-sample-size correction widens the group's variance
+            st["variance_inflation"] = (1 + st["rho"]) / (1 - st["rho"])
+            group_s2[str(g)] *= st["variance_inflation"]
         s2_row[m] = group_s2[str(g)]
     cov_x = A @ (J.T @ (J * s2_row[:, None])) @ A
     cov = cov_x * np.outer(prob.scale, prob.scale)
@@ -619,18 +627,18 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             rel = se[p] / abs(values[p]) if values[p] else math.inf
             verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}"
                                   + (" (consistent with zero)" if ci[p][0] <= 0 <= ci[p][1] else ""))
-    residuals = _residual_frame(pred, f, sigma, used)
     runs_used = sorted(set(residuals.loc[residuals["used"], "run"]))
     if s2 > 4:
         notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
                      "something (see residuals / omnibench diagnose); intervals are widened by s")
-    structure = residual_structure(residuals)
     for g, st in structure.items():
         if st["z"] > STRUCTURE_Z:
             notes.append(f"{g}: residuals are smooth along speed (lag-1 autocorrelation {st['rho']:.2f} over "
                          f"{st['pairs']} neighbour pairs, {st['z']:.1f} sigma above noise): structure the model "
                          f"misses (residual RMS {st['rms']:.3g} {st['unit']}; see the residual plot, "
-                         "omnibench diagnose)")
+                         "omnibench diagnose)"
+                         + (f"; its variance is inflated x{st['variance_inflation']:.2g} for the correlation"
+                            if "variance_inflation" in st else ""))
     return FitResult(
         robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
         cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),

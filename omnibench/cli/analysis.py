@@ -55,30 +55,44 @@ def _free(text: str | None) -> list[str] | None:
               help="Model file to write: the robot file with the fitted values and a [fit] table.")
 @click.option("--free", "free", default=None, metavar="P1,P2,...",
               help="Parameters to fit (paper symbols, or <effect>.<param>). Default: what the runs measure.")
+@click.option("--procedures", "procedures", default=None, metavar="P1,P2,...",
+              help="Observation tables that enter the fit: sweep, forward, lateral, energy, step_response "
+                   "(default: the sweep, forward and lateral runs given; e.g. --procedures step_response "
+                   "--free I_w fits the wheel inertia to step responses).")
 @click.option("--per-wheel/--no-per-wheel", default=True, show_default=True,
               help="Also fit the upside-down sweep of each wheel on its own (a, b, c per wheel).")
 @click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
               help="Folder for the figures (sweep with fitted curves, residuals).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None, per_wheel: bool,
-                plots: Path | None, as_json: bool) -> None:
+def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None,
+                procedures: str | None, per_wheel: bool, plots: Path | None, as_json: bool) -> None:
     """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
     correlations and an identifiability verdict per parameter; write the model file."""
     from omnibench.analysis.fitting import fit, fit_per_wheel
     from omnibench.analysis.model_file import write_model
     from omnibench.analysis.observations import Observations
 
+    from omnibench.analysis.observations import PROCEDURES
+
     robot, _ = _robot(robot_file)
     obs = Observations.from_runs(runs, robot)
-    if not any(len(obs.table(p)) for p in ("sweep", "forward", "lateral")):
+    procs = None
+    if procedures is not None:
+        procs = [p.strip() for p in procedures.split(",") if p.strip()]
+        bad = [p for p in procs if p not in PROCEDURES]
+        if bad or not procs:
+            raise UserError(f"--procedures: {', '.join(bad) or 'empty'}; choose from {', '.join(PROCEDURES)}")
+        if not any(len(obs.table(p)) for p in procs):
+            raise UserError(f"none of the runs holds {', '.join(procs)} observations ({obs.summary()})")
+    elif not any(len(obs.table(p)) for p in ("sweep", "forward", "lateral")):
         raise UserError("none of the runs is a sweep, forward or lateral run: nothing to fit "
                         f"({obs.summary()})")
     if not as_json:
         click.echo(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
         click.echo("Fitting through the simulator (weighted least squares)...")
-    result = fit(robot, obs, _free(free))
+    result = fit(robot, obs, _free(free), procedures=procs)
     wheels = {}
-    if per_wheel and len(obs.sweep) and obs.sweep["wheel"].nunique() > 1:
+    if per_wheel and "sweep" in result.procedures and obs.sweep["wheel"].nunique() > 1:
         wheels = fit_per_wheel(result.robot, obs, [p for p in ("a", "b", "c")])
     paths = [obs.runs[r]["path"] or r for r in result.runs_used]
     model_path = write_model(out, result, [str(p) for p in paths], per_wheel=wheels or None)
@@ -86,7 +100,7 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
     if plots is not None:
         from omnibench.analysis import plots as pl
 
-        if len(obs.sweep):
+        if "sweep" in result.procedures:
             figures.append(str(pl.plot_sweep_fit(result.robot, obs, result.residuals, plots)))
         figures.append(str(pl.plot_residuals(result.residuals, plots)))
     if as_json:
