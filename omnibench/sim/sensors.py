@@ -23,10 +23,14 @@ class Sensors:
         self.config = config
         self.counts_per_rev = int(counts_per_rev)
         self.rng = rng
+        # Where each code wheel's first edge sits relative to the wheel's zero angle (rad):
+        # random per wheel per boot, as on a real robot, so quantisation errors are random
+        # across wheels and boots rather than identical on symmetric wheels.
+        self.encoder_phase = rng.uniform(0.0, 2 * math.pi / self.counts_per_rev, 4)
 
     def encoder_counts(self, phi: np.ndarray) -> np.ndarray:
         """Absolute quadrature counts for wheel angles `phi` (rad): floor, like a counter."""
-        return np.floor(np.asarray(phi) * self.counts_per_rev / (2 * math.pi)).astype(np.int64)
+        return np.floor((np.asarray(phi) + self.encoder_phase) * self.counts_per_rev / (2 * math.pi)).astype(np.int64)
 
     def motor_current(self, i: np.ndarray) -> np.ndarray:
         """Measured motor currents, A (zeros if the board has no such sensor)."""

@@ -89,6 +89,12 @@ def test_bad_world_file(tmp_path: Path) -> None:
 def test_encoder_quantisation_and_sensor_resolution() -> None:
     s = Sensors(SensorConfig(current_noise=0.0, current_lsb=0.01), 980, np.random.default_rng(0))
     one_count = 2 * math.pi / 980
+    # each code wheel has its own random phase, less than one count
+    assert np.all((s.encoder_phase >= 0) & (s.encoder_phase < one_count))
+    assert len(set(s.encoder_phase)) == 4
+    other = Sensors(SensorConfig(), 980, np.random.default_rng(1))
+    assert not np.allclose(other.encoder_phase, s.encoder_phase)
+    s.encoder_phase = np.zeros(4)
     assert list(s.encoder_counts(np.array([0.0, 0.999 * one_count, one_count * 1.001, -0.5 * one_count]))) == [0, 0, 1, -1]
     assert list(s.motor_current(np.array([1.234, -0.006, 0.004, 2.0]))) == pytest.approx([1.23, -0.01, 0.0, 2.0])
 
