@@ -62,6 +62,8 @@ class Candidate:
     verdict: str = ""
     reason: str = ""
     fit: Any = None
+    struct: tuple[list, int] | None = None  # residual structure of the refitted model (findings, tests)
+    worse: dict[str, tuple[float, float]] = field(default_factory=dict)  # procedure -> (declared, with it)
 
     def evidence(self) -> dict[str, Any]:
         def f(x: float) -> float | None:
@@ -282,13 +284,14 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                 ho0 = engine.heldout_residuals(problem, current, fold)
                 ho1 = engine.heldout_residuals(problem, cf, fold, w_common)
                 c.cv_gain = engine.cv_score(problem, ho0, w_common) - engine.cv_score(problem, ho1, w_common)
-                e1 = engine.error_table(problem, ho1)
+                # the per-procedure errors as they will be reported (each model with its own weights)
+                e1 = engine.error_table(problem, engine.heldout_residuals(problem, cf, fold))
                 # compared with the declared model, so small losses cannot pile up round after round
-                c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err  # type: ignore[attr-defined]
+                c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err
                            if p in e1 and e1[p]["nrmse"] > (1 + WORSE) * base_err[p]["nrmse"]}
                 st, nt = _structure_of(problem, cf)
                 c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
-                c._struct = (st, nt)  # type: ignore[attr-defined]
+                c.struct = (st, nt)
                 if _judge(c, e, alpha / m, (cur_struct, cur_ntests)):
                     passing.append(c)
             else:
@@ -314,12 +317,12 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         best.verdict = "selected"
         rejected += [c for c in tried if c is not best]
         selected.append(best)
-        exposed_f = _exposing_finding(cur_struct, cur_ntests, best._struct)  # type: ignore[attr-defined]
+        exposed_f = _exposing_finding(cur_struct, cur_ntests, best.struct)
         if exposed_f is not None:
             exposed[best.name] = exposed_f
         say(f"round {rnd}: added {best.name}")
         current = best.fit
-        cur_struct, cur_ntests = best._struct  # type: ignore[attr-defined]
+        cur_struct, cur_ntests = best.struct
         pool = [e for e in pool if e.name != best.name]
     final_sig = structure.significant(cur_struct, cur_ntests)
     say("held-out errors")
@@ -359,10 +362,10 @@ def _judge(c: Candidate, e: Effect, p_needed: float, before: tuple[list, int]) -
     elif not (c.cv_gain > 2 * c.q):
         change = f"falls by {c.cv_gain:.1f}" if c.cv_gain >= 0 else f"rises by {-c.cv_gain:.1f}"
         c.reason = f"does not earn its parameters on held-out steps (held-out weighted error {change}, needs to fall by > {2 * c.q})"
-    elif getattr(c, "worse", None):
+    elif c.worse:
         c.reason = "makes the held-out error worse in " + ", ".join(
-            f"{p} ({100 * a:.2f} % -> {100 * b:.2f} %)" for p, (a, b) in c.worse.items())  # type: ignore[attr-defined]
-    elif not _explains(before, c._struct):  # type: ignore[attr-defined]
+            f"{p} ({100 * a:.2f} % -> {100 * b:.2f} %)" for p, (a, b) in c.worse.items())
+    elif c.struct is None or not _explains(before, c.struct):
         c.reason = (f"explains none of the residual structure (score {c.structure_before:.0f} -> "
                     f"{c.structure_after:.0f}, no structure loses half its strength): it leans on structure "
                     "another mechanism makes")
