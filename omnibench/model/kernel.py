@@ -408,6 +408,17 @@ def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_eve
 
 
 @njit(cache=True)
+def run_serial(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
+    """`run` on the calling thread only: for one or a few trajectories (the stepping simulator),
+    where waking the worker threads would cost more than the work."""
+    B = X0.shape[0]
+    XF = np.empty_like(X0)
+    for b in range(B):
+        _trajectory(b, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+    return XF
+
+
+@njit(cache=True)
 def _record(REC, b, r, X, aux, Mb, rv):
     if REC.shape[1] == 0:
         return
@@ -516,5 +527,6 @@ def _compile(module) -> None:
     config.SLP_VECTORIZE = 1
     try:
         module.run.compile(_run_signature())
+        module.run_serial.compile(_run_signature())
     finally:
         config.SLP_VECTORIZE = previous

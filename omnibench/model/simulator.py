@@ -273,12 +273,16 @@ def simulate_batch(
     REC = np.zeros((B, n_rec, len(columns)))
     # hand out trajectories in small chunks, so that a thread slowed by other work on the
     # machine does not leave the others idle at the end
-    previous = numba.get_parallel_chunksize()
-    numba.set_parallel_chunksize(max(1, B // (16 * numba.get_num_threads())))
-    try:
-        mod.run(X0, RV, P, EN, Rm, Sm, Minv, M, idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
-    finally:
-        numba.set_parallel_chunksize(previous)
+    args = (X0, RV, P, EN, Rm, Sm, Minv, M, idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
+    if B < 2 * numba.get_num_threads():
+        mod.run_serial(*args)  # too few to share out: waking threads would cost more
+    else:
+        previous = numba.get_parallel_chunksize()
+        numba.set_parallel_chunksize(max(1, B // (16 * numba.get_num_threads())))
+        try:
+            mod.run(*args)
+        finally:
+            numba.set_parallel_chunksize(previous)
     t = np.arange(n_rec) * record_every * dt
     return BatchResult(t, REC, columns)
 
@@ -370,11 +374,11 @@ class Simulator:
             # evaluate the auxiliary signals at the current state without stepping
             idx = np.zeros(1, dtype=np.int64)
             Xc = self._X.copy()
-            self._mod.run(Xc[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
+            self._mod.run_serial(Xc[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
                           p.Minv[None], p.M[None], idx, U, self.t, self.dt, self._sub, METHODS[self.method], 1, REC)
             return REC[0, 0]
         idx = np.zeros(n, dtype=np.int64)
-        XF = self._mod.run(self._X[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
+        XF = self._mod.run_serial(self._X[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None],
                            p.Minv[None], p.M[None], idx, U, self.t, self.dt, self._sub,
                            METHODS[self.method], n, REC)
         self._X = XF[0]
