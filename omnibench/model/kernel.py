@@ -102,9 +102,9 @@ def _source(lay: Layout) -> str:
         ("X", nx, ""), ("Xt", nx, ""), ("dX", nx, ""), ("acc", nx, ""), ("aux", NAUX, ""),
         ("rv", len(RV_NAMES), ""), ("EN", nt, ""), ("Rm", 12, ".reshape((4, 3))"),
         ("Sm", 12, ".reshape((4, 3))"), ("Minv", 9, ".reshape((3, 3))"), ("Mb", 9, ".reshape((3, 3))"),
-        ("ctx", C.CTX_SIZE, ""), ("elec", C.ELEC_SIZE, ""), ("FN", 4, ""), ("u", 4, ""), ("phi", 4, ""),
+        ("ctx", C.CTX_SIZE, ""), ("elec", C.ELEC_SIZE, ""), ("FN", 4, ""), ("u", 4, ""),
         ("phid", 4, ""), ("sig", 4, ""), ("tau", 4, ""), ("fr", 4, ""), ("cur", 4, ""), ("tmp", 4, ""),
-        ("q", 3, ""), ("v", 3, ""), ("fb", 3, ""), ("tmp3", 3, ""), ("xs_none", 0, ""),
+        ("fb", 3, ""), ("tmp3", 3, ""), ("xs_none", 0, ""),
     ]
     p_fill: list[str] = []
     s_load: list[str] = []
@@ -164,12 +164,9 @@ ground = rv[{rv["mode"]}] == {C.MODE_GROUND}
 ctx[{C.CTX_T}] = ts
 ctx[{C.CTX_PSI}] = Y[2]
 for j in range(3):
-    q[j] = Y[j]
-    v[j] = Y[3 + j]
     fb[j] = 0.0
-# wheel angles and speeds, roller slip speeds
+# wheel speeds and roller slip speeds (q, v, phi are views of the stage state)
 for j in range(4):
-    phi[j] = Y[6 + j]
     if ground:
         phid[j] = Rm[j, 0] * Y[3] + Rm[j, 1] * Y[4] + Rm[j, 2] * Y[5]
         sig[j] = Sm[j, 0] * Y[3] + Sm[j, 1] * Y[4] + Sm[j, 2] * Y[5]
@@ -283,6 +280,8 @@ if stage == 0:
     for name, n, shape in slots:
         views.append(f"{name} = SB[{off}:{off + n}]{shape}")
         off += n
+    # the hooks read pose, body velocity and wheel angles straight from the stage state Xt
+    views += [f"q = SB[{nx}:{nx + 3}]", f"v = SB[{nx + 3}:{nx + 6}]", f"phi = SB[{nx + 6}:{nx + 10}]"]
 
     def indent(text: str, n: int) -> str:
         return "\n".join(" " * n + line for line in text.splitlines() if line.strip())
