@@ -200,6 +200,42 @@ def _fmt_num(v: Any) -> str:
     return str(v)
 
 
+def diagnose_lines(res: dict[str, Any]) -> list[str]:
+    """Markdown for diagnose's JSON: what was added and why, held-out error before/after,
+    what was rejected, what stays ambiguous or unexplained."""
+    lines = ["", "| procedure | held-out error before | after |", "|---|---|---|"]
+    before, after = res.get("before") or {}, res.get("after") or {}
+    for proc in before:
+        b, a = (before.get(proc) or {}).get("nrmse"), (after.get(proc) or {}).get("nrmse")
+        lines.append(f"| {proc} | {_fmt_num(b)} | {_fmt_num(a)} |")
+    lines.append("")
+    if res["selected"]:
+        lines += ["**Added**", ""]
+        for sel in res["selected"]:
+            params = ", ".join(f"{k} = {_fmt_num(v.get('value'))} ± {_fmt_num(v.get('se'))} {v.get('unit', '')}".rstrip()
+                               for k, v in (sel.get("parameters") or {}).items())
+            ev = sel.get("evidence") or {}
+            lines.append(f"- `{sel['effect']}` ({sel.get('title', '')}): {params}; likelihood ratio "
+                         f"{_fmt_num(ev.get('likelihood_ratio'))} for {ev.get('parameters_added')} parameter(s), "
+                         f"p = {_fmt_num(ev.get('p_value'))}, held-out gain {_fmt_num(ev.get('heldout_gain'))}")
+    else:
+        lines.append("**Added**: nothing: no candidate effect earned its parameters on held-out runs.")
+    lines.append("")
+    for amb in res.get("ambiguous") or []:
+        lines.append(f"- ambiguous: `{amb.get('chosen')}` vs `{amb.get('alternative')}` "
+                     f"(AIC difference {_fmt_num(amb.get('aic_difference'))}); to separate them: {amb.get('experiment')}")
+    for un in res.get("unexplained") or []:
+        lines.append(f"- unexplained structure in {un.get('group')} against {un.get('variable')} "
+                     f"(p = {_fmt_num(un.get('p'))}): {un.get('where') or un.get('location')}")
+    if res.get("rejected"):
+        lines += ["", "<details><summary>rejected candidates</summary>", ""]
+        lines += [f"- `{r.get('effect')}`: {r.get('reason')}" for r in res["rejected"]]
+        lines += ["", "</details>"]
+    for note in res.get("notes") or []:
+        lines.append(f"- note: {note}")
+    return lines
+
+
 def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
     """Markdown for one analysis stage's JSON result (tables where the shape is known)."""
     res = st.get("result")
@@ -226,6 +262,8 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
         if "mean_abs_error_pct" in res:
             lines.append(f"- mean |error| {_fmt_num(res['mean_abs_error_pct'])} %, "
                          f"max {_fmt_num(res.get('max_abs_error_pct'))} %")
+    elif isinstance(res, dict) and name == "diagnose" and "selected" in res:
+        lines += diagnose_lines(res)
     elif res is not None:
         text = json.dumps(res, indent=2, default=str).splitlines()
         lines += ["", "```json", *text[:60], *(["..."] if len(text) > 60 else []), "```"]

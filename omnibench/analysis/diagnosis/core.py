@@ -39,6 +39,8 @@ PARTIAL = 0.5  # a candidate must remove at least this fraction of the residual 
 SCREEN_FRACTION = 0.5  # screen LR below this fraction of the add threshold: not refitted
 WORSE = 0.05  # no procedure's held-out error may end more than this fraction above the declared model's
 MAX_FITS = 6  # refits per round when the top_k all fail
+POLISH_NFEV = 60  # evaluations allowed when fitting the declared and each accepted model
+ZERO_SE = 2.0  # a candidate whose every fitted parameter is within this many SE of 0 is absent
 RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
 
 
@@ -239,7 +241,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     problem = engine.Problem(obs, procs)
     if not problem.used.any():
         raise UserError("no usable measurements in these runs")
-    base = engine.fit_model(problem, start, free, passes=2)
+    base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV, passes=3)
     fold = engine.cv_folds(problem, folds, seed)
     base_struct, n_tests = _structure_of(problem, base)
     base_sig = structure.significant(base_struct, n_tests)
@@ -321,7 +323,17 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         if exposed_f is not None:
             exposed[best.name] = exposed_f
         say(f"round {rnd}: added {best.name}")
-        current = best.fit
+        # Polish the accepted model to convergence: a candidate fit stops after a few
+        # evaluations, and the next round's likelihood ratios must not be inflated by the
+        # convergence the next candidate's refit would merely continue.
+        current = engine.fit_model(problem, best.fit.robot, best.fit.free, max_nfev=POLISH_NFEV, passes=3)
+        if current.deviance > best.fit.deviance:
+            current = best.fit
+        else:
+            best.fit = current
+            best.values = {p: current.values[p] for p in best.values}
+            best.se = {p: current.se[p] for p in best.values}
+            best.struct = _structure_of(problem, current)
         cur_struct, cur_ntests = best.struct
         pool = [e for e in pool if e.name != best.name]
     final_sig = structure.significant(cur_struct, cur_ntests)
@@ -356,6 +368,10 @@ def _judge(c: Candidate, e: Effect, p_needed: float, before: tuple[list, int]) -
     """Does a refitted candidate earn its place? Sets c.reason when it does not."""
     if not (c.p < p_needed):
         c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {p_needed:.1e})"
+    elif c.values and all(abs(v) < ZERO_SE * c.se.get(k, 0.0) for k, v in c.values.items()):
+        c.reason = (f"its fitted size is indistinguishable from zero ("
+                    + ", ".join(f"{k} = {v:.3g} ± {c.se.get(k, float('nan')):.2g}" for k, v in c.values.items())
+                    + "): the likelihood gain comes from refitting the other parameters, not from the effect")
     elif _at_bound(e, c.values):
         c.reason = (f"its fit runs to the edge of the physical range ({_at_bound(e, c.values)}): it stands in "
                     "for something else rather than measuring itself")
