@@ -27,7 +27,6 @@ so any robot file is also a valid model file (fit_info is then empty).
 from __future__ import annotations
 
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +34,7 @@ import tomli_w
 
 from omnibench import __version__
 from omnibench.errors import UserError
+from omnibench.files import read_toml
 from omnibench.model.robot import Robot, robot_from_dict
 
 
@@ -91,17 +91,8 @@ def write_model(path: str | Path, result: Any, runs: list[str] | None = None, *,
 def load_model(path: str | Path) -> tuple[Robot, dict[str, Any]]:
     """Read a model file (or a plain robot file): (Robot, the [fit] table or {})."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{p}: model file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: cannot read model file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{p}: not valid TOML: {exc}") from None
-    info = data.pop("fit", {})
+    data, text = read_toml(p, "model file")
+    info = data.get("fit", {})
     if not isinstance(info, dict):
         raise UserError(f"{p}: [fit] must be a table")
     return robot_from_dict(data, path=str(p), text=text), info

@@ -25,6 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from omnibench.errors import UserError
+from omnibench.files import read_text
 from omnibench.model.units import to_si
 
 PROCEDURES = ("upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories")
@@ -226,14 +227,7 @@ class ProcedureFile:
 
 
 def read_procedure_file(path: str | Path) -> ProcedureFile:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{p}: procedure file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: cannot read procedure file ({exc.__class__.__name__})") from None
-    return ProcedureFile(str(p), text)
+    return ProcedureFile(str(Path(path)), read_text(path, "procedure file"))
 
 
 def default_procedure_path(procedure: str) -> Path:

@@ -9,12 +9,12 @@ import dataclasses
 import difflib
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 from omnibench.errors import UserError
+from omnibench.files import read_toml
 from omnibench.model.units import to_si
 
 DEFAULT_ROBOT_FILE = Path(__file__).with_name("omnibot.toml")
@@ -233,19 +233,9 @@ def robot_from_dict(data: Mapping[str, Any], *, path: str = "<robot>", text: str
 
 
 def load_robot(path: str | Path) -> Robot:
-    """Read and validate a robot TOML file; UserError (one line) on any problem."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{p}: robot file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: cannot read robot file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"{p}: not valid TOML: {exc}") from None
-    return robot_from_dict(data, path=str(p), text=text)
+    """Read and validate a robot (or fitted model) TOML file; UserError (one line) on any problem."""
+    data, text = read_toml(path, "robot file")
+    return robot_from_dict(data, path=str(Path(path)), text=text)
 
 
 def default_robot() -> Robot:
