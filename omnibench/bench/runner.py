@@ -337,7 +337,9 @@ class Runner:
         out["I_batt"] = float(np.mean(I)) if I else None
         return out
 
-    def _timed(self, step: Step) -> dict[str, Any]:
+    def _drive_from_start_mark(self, step: Step) -> tuple["StepData", float, float, float]:
+        """Operator puts the robot at the start mark; drive the step's schedule, stop, let it
+        settle. Returns the samples and board times (start, end of drive, end of settle), s."""
         self._stop()
         answer = self.operator.start_mark(step)
         self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
@@ -347,6 +349,10 @@ class Runner:
         t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
         self._stop()
         _, t_end = self._run_for(step, data, step.settle, None)
+        return data, t0, t_drive_end, t_end
+
+    def _timed(self, step: Step) -> dict[str, Any]:
+        data, t0, t_drive_end, t_end = self._drive_from_start_mark(step)
         t, phi = data.arrays(self.cpr)
         dphi = phi[-1] - phi[0]
         measured = self.operator.measure(step)
@@ -388,15 +394,7 @@ class Runner:
         return out
 
     def _trajectory(self, step: Step) -> dict[str, Any]:
-        self._stop()
-        answer = self.operator.start_mark(step)
-        self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
-                                    self.operator.source)
-        self._after_operator()
-        data = StepData()
-        t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
-        self._stop()
-        _, t_end = self._run_for(step, data, step.settle, None)
+        data, t0, t_drive_end, t_end = self._drive_from_start_mark(step)
         t = np.asarray(data.t, dtype=float)
         V = np.array([np.nan if v is None else v for v in data.V], dtype=float)
         I = np.array([np.nan if v is None else v for v in data.I], dtype=float)
