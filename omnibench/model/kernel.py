@@ -3,21 +3,26 @@
 Generation keeps the integrator ignorant of which effects exist: every registered term is
 called through its hooks when it is enabled for a trajectory. The generated source is written
 to a cache folder keyed by a hash of the terms' code, so numba's on-disk cache survives across
-processes and the compile (about 45 s of CPU with the effects library) happens once per machine
-and code version.
+processes and the compile (about a minute of CPU with the effects library) happens once per
+machine and code version.
 
 How it is made fast (issue 2; `benchmarks/simulate.py` measures it):
-  - the derivative is written straight into the stage loop of `_trajectory` (no call), and every
-    hook is re-compiled in the generated module with numba `inline="always"`: the hooks keep the
-    signatures of `omnibench.model.terms`, their modules keep plain `@njit`;
-  - all per-trajectory arrays (state, stages, scratch, each term's parameters and states) are
-    views at constant offsets of one buffer, so LLVM knows they never overlap: values stay in
-    registers and, with LLVM's SLP vectoriser switched on for this compile (numba leaves it off),
-    the hooks' 4-wheel loops run as vector instructions (sqrt and division 4 at a time);
+  - trajectories are integrated in groups of WIDTH lanes in lockstep, stored as structure of
+    arrays (element i of lane k at i * WIDTH + k): each arithmetic instruction works on WIDTH
+    trajectories at once (AVX2: four doubles). Hooks are written for one trajectory and are
+    rewritten into lane form from their own source (`omnibench.model.lanes`); so is each
+    section of the derivative below. Lanes of a group share sub-steps, mode and the set of
+    enabled terms (those decide branches); a short group is padded with copies of its first
+    lane, so a trajectory gives the same numbers alone or inside any batch;
+  - every hook is compiled with numba `inline="always"` and the derivative is written straight
+    into the stage loop: no call, no reference count, nothing allocated per step;
+  - every lane array is a flat view at a constant offset of one scratch buffer, so LLVM knows
+    they never overlap and the index arithmetic is constant (numba's reshaped views carry
+    their shape at run time, which defeats the vectoriser);
   - error_model="numpy" (no zero-division branches) and fastmath={"contract"} (fused
     multiply-add only: results move by ~1e-16 relative, nothing else is relaxed);
-  - sub-steps are per trajectory; trajectories are spread over the cores with prange in small
-    chunks; libm sincos only when the heading has turned 0.05 rad (else a Taylor rotation).
+  - groups are spread over the cores with prange; libm sincos only when the heading has turned
+    0.05 rad (else a Taylor rotation).
 
 State vector X (per trajectory), all SI:
   0-2 pose q = (x, y, psi) in the world frame
@@ -35,15 +40,15 @@ State vector X (per trajectory), all SI:
 from __future__ import annotations
 
 import hashlib
-import re
 import importlib.util
 import inspect
 import os
 import sys
 import tempfile
+import textwrap
 from pathlib import Path
 
-from omnibench.model import context
+from omnibench.model import context, lanes
 from omnibench.model.terms import HOOKS, Layout, layout
 
 # Robot vector rv: per-trajectory constants.
@@ -63,279 +68,322 @@ AUX_NAMES = (
 NAUX = len(AUX_NAMES)
 
 METHOD_HEUN, METHOD_RK4 = 0, 1
-
-
-def _hook_import(fn) -> tuple[str, str]:
-    py = getattr(fn, "py_func", fn)
-    return py.__module__, py.__name__
+# Trajectories per lane group: four doubles fill an AVX2 register.
+WIDTH = 4
 
 
 def alias_name(k: int, hook: str) -> str:
-    """Name of term k's hook in the generated module."""
+    """Name of term k's hook (lane form) in the generated module."""
     return f"h{k}_{hook}"
 
 
-def _zero(name: str, n: int, indent: str) -> str:
-    return "\n".join(f"{indent}{name}[{j}] = 0.0" for j in range(n))
+def _indent(text: str, n: int) -> str:
+    return textwrap.indent(text, " " * n)
 
 
-def _source(lay: Layout) -> str:
-    """Python source of the kernel module for this layout.
+class _Sections:
+    """Builds the derivative from group-level code and per-trajectory blocks L(...), which
+    become loops over the lanes (`lanes.lane_block`)."""
 
-    Speed (the batch fits run this loop ~1e8 times): the derivative is written straight into
-    the stage loop of `_trajectory` and every hook is re-compiled with numba
-    `inline="always"`, so a derivative evaluation makes no function call and touches no
-    reference count. Every array a hook receives (its parameters, its states, phi, the zeroed
-    `out`) is a per-trajectory scratch array made once before the time loop, never a slice
-    made per call; nothing is allocated inside the time loop. The hooks keep the signatures
-    documented in `omnibench.model.terms`.
-    """
-    rv = dict(RV)
-    C = context
+    def __init__(self, arrays: set[str], width: int) -> None:
+        self.arrays, self.width = arrays, width
+
+    def L(self, code: str, uses_lane: bool = False) -> str:
+        return lanes.lane_block(textwrap.dedent(code).strip("\n"), self.arrays, self.width, uses_lane=uses_lane)
+
+
+def _source(lay: Layout, width: int = WIDTH) -> str:
+    """Python source of the kernel module for this layout, `width` lanes per group."""
+    C, rv, W = context, RV, width
     nt = len(lay.terms)
-    imports: list[str] = []
-    rejit: list[str] = []
-    calls: dict[str, list[str]] = {h: [] for h in HOOKS}
     nx = NX_FIXED + nt + lay.n_states
-    # every per-trajectory array is a view at a constant offset of one scratch buffer
-    slots: list[tuple[str, int, str]] = [
-        ("X", nx, ""), ("Xt", nx, ""), ("dX", nx, ""), ("acc", nx, ""), ("aux", NAUX, ""),
-        ("rv", len(RV_NAMES), ""), ("EN", nt, ""), ("Rm", 12, ".reshape((4, 3))"),
-        ("Sm", 12, ".reshape((4, 3))"), ("Minv", 9, ".reshape((3, 3))"), ("Mb", 9, ".reshape((3, 3))"),
-        ("ctx", C.CTX_SIZE, ""), ("elec", C.ELEC_SIZE, ""), ("FN", 4, ""), ("u", 4, ""),
-        ("phid", 4, ""), ("sig", 4, ""), ("tau", 4, ""), ("fr", 4, ""), ("cur", 4, ""), ("tmp", 4, ""),
-        ("fb", 3, ""), ("tmp3", 3, ""), ("xs_none", 0, ""),
+    # per-lane arrays (name, elements per lane): each a flat view of the scratch buffer
+    slots: list[tuple[str, int]] = [
+        ("X", nx), ("Xt", nx), ("dX", nx), ("acc", nx), ("aux", NAUX), ("rv", len(RV_NAMES)),
+        ("Rm", 12), ("Sm", 12), ("Minv", 9), ("Mb", 9), ("ctx", C.CTX_SIZE), ("elec", C.ELEC_SIZE),
+        ("FN", 4), ("u", 4), ("ucmd", 4), ("phid", 4), ("sig", 4), ("tau", 4), ("fr", 4), ("cur", 4),
+        ("tmp", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
+        ("xs_none", 0),
     ]
+    for k, term in enumerate(lay.terms):
+        slots.append((f"p{k}", len(term.params)))
+        if term.n_states:
+            slots += [(f"xs{k}", term.n_states), (f"dxs{k}", term.n_states)]
+    arrays = {name for name, _ in slots} | {"q", "v", "phi"}
+    L = _Sections(arrays, W).L
+
+    hook_defs: list[str] = []
+    hook_globals: dict[str, tuple[object, str]] = {}
+    calls: dict[str, list[str]] = {h: [] for h in HOOKS}
     p_fill: list[str] = []
     s_load: list[str] = []
     s_store: list[str] = []
-    I = "    "  # one indent level of the derivative body (re-indented below)
     for k, term in enumerate(lay.terms):
-        p0, p1 = lay.param_offset[k], lay.param_offset[k] + len(term.params)
+        p0 = lay.param_offset[k]
         s0 = NX_FIXED + nt + lay.state_offset[k]
         ns = term.n_states
         p = f"p{k}"
-        slots.append((p, p1 - p0, ""))
-        p_fill.append(f"{p}[:] = P[b, {p0}:{p1}]")
-        e = f"EN[{k}] != 0.0"
+        p_fill.append(f"for i in range({len(term.params)}):\n    {p}[i] = P[b, {p0} + i]")
         for hook, fn in term.hooks.items():
-            mod, name = _hook_import(fn)
-            alias = alias_name(k, hook)
-            imports.append(f"from {mod} import {name} as _{alias}")
-            rejit.append(f'{alias} = njit(inline="always", error_model="numpy", fastmath={{"contract"}})(_{alias}.py_func)')
+            src, needed = lanes.lane_function(fn, alias_name(k, hook), W)
+            home = getattr(fn, "py_func", fn).__module__
+            for name, obj in needed.items():
+                if name in hook_globals and hook_globals[name][0] is not obj:
+                    raise lanes.HookFormError(f"two hooks use the global name `{name}` for different things")
+                hook_globals[name] = (obj, home)
+            hook_defs.append('@njit(inline="always", error_model="numpy", fastmath={"contract"})\n' + src)
         xs = f"xs{k}" if ns else "xs_none"
         if ns:
-            dxs = f"dxs{k}"
-            slots += [(xs, ns, ""), (dxs, ns, "")]
-            s_load += [f"{xs}[{i}] = Y[{s0 + i}]" for i in range(ns)]
-            if "state_derivative" in term.hooks:
-                s_store.append(
-                    f"if {e}:\n{_zero(dxs, ns, I)}\n"
-                    f"{I}{alias_name(k, 'state_derivative')}({dxs}, {xs}, cur, phid, elec, ctx, {p})\n"
-                    + "\n".join(f"{I}dX[{s0 + i}] = {dxs}[{i}]" for i in range(ns))
-                    + f"\nelse:\n" + "\n".join(f"{I}dX[{s0 + i}] = 0.0" for i in range(ns))
-                )
-            else:
-                s_store.append("\n".join(f"dX[{s0 + i}] = 0.0" for i in range(ns)))
+            s_load.append(L(f"for i in range({ns}):\n    {xs}[i] = Xt[{s0} + i]"))
+        en = f"EN[{k}] != 0.0"
+        lanes_loop = f"for k in range({W}):"
         for hook in term.hooks:
-            alias = alias_name(k, hook)
+            a = alias_name(k, hook)
             if hook == "normal_force":
-                calls[hook].append(f"if {e}:\n{I}{alias}(FN, ctx, {p})")
+                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(FN, ctx, {p}, k)")
             elif hook == "duty":
-                calls[hook].append(f"if {e}:\n{I}{alias}(u, ctx, {p})")
+                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(u, ctx, {p}, k)")
             elif hook == "electrical":
-                calls[hook].append(f"if {e}:\n{I}{alias}(elec, {xs}, ctx, {p})")
+                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(elec, {xs}, ctx, {p}, k)")
             elif hook in ("wheel_torque", "roller_force", "body_force"):
                 n, out, speed, total, cond, args = {
-                    "wheel_torque": (4, "tmp", "phid", "tau", e, f"tmp, phi, phid, FN, cur, {xs}, ctx, {p}"),
-                    "roller_force": (4, "tmp", "sig", "fr", f"{e} and ground", f"tmp, sig, FN, ctx, {p}"),
-                    "body_force": (3, "tmp3", "v", "fb", f"{e} and ground", f"tmp3, q, v, ctx, {p}"),
+                    "wheel_torque": (4, "tmp", "phid", "tau", en, f"tmp, phi, phid, FN, cur, {xs}, ctx, {p}"),
+                    "roller_force": (4, "tmp", "sig", "fr", f"{en} and ground", f"tmp, sig, FN, ctx, {p}"),
+                    "body_force": (3, "tmp3", "v", "fb", f"{en} and ground", f"tmp3, q, v, ctx, {p}"),
                 }[hook]
+                book = L(f"""
+                    pw = 0.0
+                    for j in range({n}):
+                        {total}[j] += {out}[j]
+                        pw += {out}[j] * {speed}[j]
+                    dX[{NX_FIXED + k}] -= pw
+                """)
                 calls[hook].append(
-                    f"if {cond}:\n{_zero(out, n, I)}\n{I}{alias}({args})\n{I}pw = 0.0\n"
-                    f"{I}for j in range({n}):\n{I}{I}{total}[j] += {out}[j]\n{I}{I}pw += {out}[j] * {speed}[j]\n"
-                    f"{I}dX[{NX_FIXED + k}] -= pw"
-                )
+                    f"if {cond}:\n    for i in range({n * W}):\n        {out}[i] = 0.0\n"
+                    f"    {lanes_loop}\n        {a}({args}, k)\n" + _indent(book, 4))
+        if ns:
+            zero = L(f"for i in range({ns}):\n    dX[{s0} + i] = 0.0")
+            if "state_derivative" in term.hooks:
+                a = alias_name(k, "state_derivative")
+                copy = L(f"for i in range({ns}):\n    dX[{s0} + i] = dxs{k}[i]")
+                s_store.append(
+                    f"if {en}:\n    for i in range({ns * W}):\n        dxs{k}[i] = 0.0\n"
+                    f"    {lanes_loop}\n        {a}(dxs{k}, {xs}, cur, phid, elec, ctx, {p}, k)\n"
+                    + _indent(copy, 4) + "\nelse:\n" + _indent(zero, 4))
+            else:
+                s_store.append(zero)
+
     body = {h: "\n".join(c) for h, c in calls.items()}
-    zero_terms = "\n".join(f"dX[{NX_FIXED + k}] = 0.0" for k in range(nt))
-    deriv = f"""\
-# ---- derivative dX = f(Y, ucmd, ts); aux gets the auxiliary signals ----
-ground = rv[{rv["mode"]}] == {C.MODE_GROUND}
-ctx[{C.CTX_T}] = ts
-ctx[{C.CTX_PSI}] = Y[2]
-for j in range(3):
-    fb[j] = 0.0
-# wheel speeds and roller slip speeds (q, v, phi are views of the stage state)
-for j in range(4):
-    if ground:
-        phid[j] = Rm[j, 0] * Y[3] + Rm[j, 1] * Y[4] + Rm[j, 2] * Y[5]
-        sig[j] = Sm[j, 0] * Y[3] + Sm[j, 1] * Y[4] + Sm[j, 2] * Y[5]
-    else:
-        phid[j] = Y[10 + j]
-        sig[j] = 0.0
-    FN[j] = rv[{rv["FN1"]} + j]
-    u[j] = ucmd[j]
-    fr[j] = 0.0
-{chr(10).join(s_load)}
-{zero_terms}
-# normal forces
-{body["normal_force"]}
-# duty map
-{body["duty"]}
-for j in range(4):
-    u[j] = min(1.0, max(-1.0, u[j]))
-# electrical slots, then motor currents and battery voltage (closed form with R_batt)
-elec[{C.ELEC_R_BATT}] = 0.0
-elec[{C.ELEC_I_Q}] = rv[{rv["I_0"]}]
-for j in range(4):
-    elec[{C.ELEC_RA_SCALE} + j] = 1.0
-{body["electrical"]}
-R_b = elec[{C.ELEC_R_BATT}]
-I_q = elec[{C.ELEC_I_Q}]
-if R_b == 0.0:
-    V = V_oc
-else:
-    num = V_oc - R_b * I_q
-    den = 1.0
-    for j in range(4):
-        Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
-        num += R_b * u[j] * k_e * phid[j] / Rj
-        den += R_b * u[j] * u[j] / Rj
-    V = num / den
-I_batt = I_q
-copper = 0.0
-conv = 0.0
-for j in range(4):
-    Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
-    cur[j] = (u[j] * V - k_e * phid[j]) / Rj
-    I_batt += u[j] * cur[j]
-    copper += cur[j] * cur[j] * Rj
-    conv += (k_e - eta * k_t) * cur[j] * phid[j]
-    tau[j] = eta * k_t * cur[j]
-dX[{X_E_BATT}] = V * I_batt
-dX[{X_E_COPPER}] = copper
-dX[{X_E_CONV}] = conv
-dX[{X_E_QUIESCENT}] = V * I_q
-# wheel-axle torques
-{body["wheel_torque"]}
-# roller-axis forces
-{body["roller_force"]}
-# body forces
-{body["body_force"]}
-# term states
-{chr(10).join(s_store)}
-# mechanics
-if ground:
-    g0 = fb[0] + mass * Y[5] * Y[4]
-    g1 = fb[1] - mass * Y[5] * Y[3]
-    g2 = fb[2]
-    for j in range(4):
-        g0 += Rm[j, 0] * tau[j] + Sm[j, 0] * fr[j]
-        g1 += Rm[j, 1] * tau[j] + Sm[j, 1] * fr[j]
-        g2 += Rm[j, 2] * tau[j] + Sm[j, 2] * fr[j]
-    for j in range(3):
-        dX[3 + j] = Minv[j, 0] * g0 + Minv[j, 1] * g1 + Minv[j, 2] * g2
-    # cos/sin of the heading: libm only once the heading is 0.05 rad away from the last exact
-    # value (psi_ref); otherwise that exact value rotated by the increment, whose cos/sin come
-    # from Taylor series (truncation < 1e-17 for |dpsi| < 0.05 rad; no error accumulates)
-    dpsi = Y[2] - psi_ref
-    if abs(dpsi) >= 0.05:
-        psi_ref = Y[2]
-        c_ref = math.cos(psi_ref)
-        s_ref = math.sin(psi_ref)
-        dpsi = 0.0
-    d2 = dpsi * dpsi
-    cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0 - d2 * (1.0 / 40320.0))))
-    sd = dpsi * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
-    cpsi = c_ref * cd - s_ref * sd
-    spsi = s_ref * cd + c_ref * sd
-    dX[0] = cpsi * Y[3] - spsi * Y[4]
-    dX[1] = spsi * Y[3] + cpsi * Y[4]
-    dX[2] = Y[5]
-    for j in range(4):
-        dX[6 + j] = phid[j]
-        dX[10 + j] = 0.0
-else:
-    for j in range(6):
-        dX[j] = 0.0
-    for j in range(4):
-        dX[6 + j] = phid[j]
-        dX[10 + j] = tau[j] / I_w
-# auxiliary signals (recorded from the first stage only)
-if stage == 0:
-    for j in range(4):
-        aux[j] = cur[j]
-        aux[6 + j] = u[j]
-        aux[10 + j] = FN[j]
-    aux[4] = V
-    aux[5] = I_batt
-# ---- end of derivative ----"""
+    deriv = "\n".join([
+        "# ---- derivative dX = f(Xt, ucmd, ts) of every lane; aux gets the auxiliary signals ----",
+        L(f"""
+            ctx[{C.CTX_T}] = ts
+            ctx[{C.CTX_PSI}] = Xt[2]
+            for j in range(3):
+                fb[j] = 0.0
+            for j in range(4):
+                FN[j] = rv[{rv["FN1"]} + j]
+                u[j] = ucmd[j]
+                fr[j] = 0.0
+            for i in range({nt}):
+                dX[{NX_FIXED} + i] = 0.0
+        """),
+        *s_load,
+        "# wheel speeds and roller slip speeds",
+        "if ground:",
+        _indent(L("""
+            for j in range(4):
+                phid[j] = Rm[3 * j] * Xt[3] + Rm[3 * j + 1] * Xt[4] + Rm[3 * j + 2] * Xt[5]
+                sig[j] = Sm[3 * j] * Xt[3] + Sm[3 * j + 1] * Xt[4] + Sm[3 * j + 2] * Xt[5]
+        """), 4),
+        "else:",
+        _indent(L("""
+            for j in range(4):
+                phid[j] = Xt[10 + j]
+                sig[j] = 0.0
+        """), 4),
+        "# normal forces",
+        body["normal_force"],
+        "# duty map",
+        body["duty"],
+        L(f"""
+            for j in range(4):
+                u[j] = min(1.0, max(-1.0, u[j]))
+            elec[{C.ELEC_R_BATT}] = 0.0
+            elec[{C.ELEC_I_Q}] = rv[{rv["I_0"]}]
+            for j in range(4):
+                elec[{C.ELEC_RA_SCALE} + j] = 1.0
+        """),
+        "# electrical slots, then motor currents and battery voltage (closed form with the",
+        "# battery's series resistance R_b; R_b = 0 gives V = V_oc exactly)",
+        body["electrical"],
+        L(f"""
+            k_e = rv[{rv["k_e"]}]
+            k_t = rv[{rv["k_t"]}]
+            eta = rv[{rv["eta"]}]
+            R_a = rv[{rv["R_a"]}]
+            R_b = elec[{C.ELEC_R_BATT}]
+            I_q = elec[{C.ELEC_I_Q}]
+            num = rv[{rv["V_batt"]}] - R_b * I_q
+            den = 1.0
+            for j in range(4):
+                Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
+                num += R_b * u[j] * k_e * phid[j] / Rj
+                den += R_b * u[j] * u[j] / Rj
+            V = num / den
+            I_batt = I_q
+            copper = 0.0
+            conv = 0.0
+            for j in range(4):
+                Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
+                c = (u[j] * V - k_e * phid[j]) / Rj
+                cur[j] = c
+                I_batt += u[j] * c
+                copper += c * c * Rj
+                conv += (k_e - eta * k_t) * c * phid[j]
+                tau[j] = eta * k_t * c
+            dX[{X_E_BATT}] = V * I_batt
+            dX[{X_E_COPPER}] = copper
+            dX[{X_E_CONV}] = conv
+            dX[{X_E_QUIESCENT}] = V * I_q
+            Vb[0] = V
+            Ib[0] = I_batt
+        """),
+        "# wheel-axle torques",
+        body["wheel_torque"],
+        "# roller-axis forces",
+        body["roller_force"],
+        "# body forces",
+        body["body_force"],
+        "# term states",
+        *s_store,
+        "# mechanics",
+        "if ground:",
+        _indent(L(f"""
+            mass = rv[{rv["mass"]}]
+            g0 = fb[0] + mass * Xt[5] * Xt[4]
+            g1 = fb[1] - mass * Xt[5] * Xt[3]
+            g2 = fb[2]
+            for j in range(4):
+                g0 += Rm[3 * j] * tau[j] + Sm[3 * j] * fr[j]
+                g1 += Rm[3 * j + 1] * tau[j] + Sm[3 * j + 1] * fr[j]
+                g2 += Rm[3 * j + 2] * tau[j] + Sm[3 * j + 2] * fr[j]
+            for i in range(3):
+                dX[3 + i] = Minv[3 * i] * g0 + Minv[3 * i + 1] * g1 + Minv[3 * i + 2] * g2
+            for j in range(4):
+                dX[6 + j] = phid[j]
+                dX[10 + j] = 0.0
+        """), 4),
+        "    # cos/sin of the heading: libm only once the heading is 0.05 rad away from the last exact",
+        "    # value psr; otherwise that value rotated by the increment, whose cos/sin come from Taylor",
+        "    # series (truncation < 1e-17 for |dpsi| < 0.05 rad; no error accumulates)",
+        _indent(L("""
+            if abs(Xt[2] - psr[0]) >= 0.05:
+                psr[0] = Xt[2]
+                cref[0] = math.cos(psr[0])
+                sref[0] = math.sin(psr[0])
+        """), 4),
+        _indent(L("""
+            dpsi = Xt[2] - psr[0]
+            d2 = dpsi * dpsi
+            cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 * (1.0 / 720.0 - d2 * (1.0 / 40320.0))))
+            sd = dpsi * (1.0 - d2 * (1.0 / 6.0 - d2 * (1.0 / 120.0 - d2 * (1.0 / 5040.0))))
+            cpsi = cref[0] * cd - sref[0] * sd
+            spsi = sref[0] * cd + cref[0] * sd
+            dX[0] = cpsi * Xt[3] - spsi * Xt[4]
+            dX[1] = spsi * Xt[3] + cpsi * Xt[4]
+            dX[2] = Xt[5]
+        """), 4),
+        "else:",
+        _indent(L(f"""
+            I_w = rv[{rv["I_w"]}]
+            for j in range(6):
+                dX[j] = 0.0
+            for j in range(4):
+                dX[6 + j] = phid[j]
+                dX[10 + j] = tau[j] / I_w
+        """), 4),
+        "# auxiliary signals (recorded from the first stage only)",
+        "if stage == 0:",
+        _indent(L("""
+            for j in range(4):
+                aux[j] = cur[j]
+                aux[6 + j] = u[j]
+                aux[10 + j] = FN[j]
+            aux[4] = Vb[0]
+            aux[5] = Ib[0]
+        """), 4),
+        "# ---- end of derivative ----",
+    ])
     deriv = "\n".join(line for line in deriv.splitlines() if line.strip())
-    deriv = re.sub(r"\bY\[", "Xt[", deriv)  # the stage state is always in Xt
 
-    views = ["# one scratch buffer, every array a view at a constant offset: LLVM can prove they",
-             "# never overlap, keeps values in registers and vectorises the hooks' 4-wheel loops"]
-    views.append(f"SB = np.zeros({sum(n for _, n, _ in slots)})")
-    off = 0
-    for name, n, shape in slots:
-        views.append(f"{name} = SB[{off}:{off + n}]{shape}")
-        off += n
+    views = [f"SB = np.zeros({sum(n for _, n in slots) * W})"]
+    off, xt = 0, 0
+    for name, n in slots:
+        views.append(f"{name} = SB[{off}:{off + n * W}]")
+        if name == "Xt":
+            xt = off
+        off += n * W
     # the hooks read pose, body velocity and wheel angles straight from the stage state Xt
-    views += [f"q = SB[{nx}:{nx + 3}]", f"v = SB[{nx + 3}:{nx + 6}]", f"phi = SB[{nx + 6}:{nx + 10}]"]
+    views += [f"q = SB[{xt}:{xt + 3 * W}]", f"v = SB[{xt + 3 * W}:{xt + 6 * W}]",
+              f"phi = SB[{xt + 6 * W}:{xt + 10 * W}]"]
+    setup = L("\n".join([
+        "b = bs[k]",
+        f"for i in range({nx}):\n    X[i] = X0[b, i]",
+        f"for i in range({len(RV_NAMES)}):\n    rv[i] = RV[b, i]",
+        "for i in range(4):\n    for m in range(3):\n        Rm[3 * i + m] = Rm_[b, i, m]\n        Sm[3 * i + m] = Sm_[b, i, m]",
+        "for i in range(3):\n    for m in range(3):\n        Minv[3 * i + m] = Minv_[b, i, m]\n        Mb[3 * i + m] = M[b, i, m]",
+        *p_fill,
+        f'ctx[{C.CTX_MODE}] = rv[{rv["mode"]}]', f'ctx[{C.CTX_W}] = rv[{rv["W"]}]',
+        f'ctx[{C.CTX_MASS}] = rv[{rv["mass"]}]', f'ctx[{C.CTX_L}] = rv[{rv["L"]}]',
+        f'ctx[{C.CTX_LW}] = rv[{rv["l"]}]', f'ctx[{C.CTX_R}] = rv[{rv["r"]}]',
+        f"ctx[{C.CTX_G}] = {C.GRAVITY}",
+        f'ctx[{C.CTX_SIGN_PHI}] = rv[{rv["sign_width_phi"]}]',
+        f'ctx[{C.CTX_SIGN_SIGMA}] = rv[{rv["sign_width_sigma"]}]',
+        f'ctx[{C.CTX_V_NOMINAL}] = rv[{rv["V_batt"]}]',
+        "psr[0] = X[2]", "cref[0] = math.cos(psr[0])", "sref[0] = math.sin(psr[0])",
+    ]), uses_lane=True)
+    imports = sorted({lanes.import_line(name, obj, home) for name, (obj, home) in hook_globals.items()}
+                     - {"import math", "import numpy as np"})
+    return _TEMPLATE.format(
+        imports="\n".join(imports), nx=nx, nt=nt, W=W, mode=rv["mode"], ground=C.MODE_GROUND,
+        rk4=METHOD_RK4, naux=NAUX, naux_last=NAUX - 1, i_w=rv["I_w"], hooks=("\n" * 3).join(hook_defs),
+        views=_indent("\n".join(views), 4), setup=_indent(setup, 4), deriv=_indent(deriv, 16))
 
-    def indent(text: str, n: int) -> str:
-        return "\n".join(" " * n + line for line in text.splitlines() if line.strip())
 
-    return f'''# Generated by omnibench.model.kernel from the registered terms. Do not edit.
+_TEMPLATE = '''\
+# Generated by omnibench.model.kernel from the registered terms. Do not edit.
 import math
 import numpy as np
 from numba import njit, prange
-{chr(10).join(sorted(set(imports)))}
+{imports}
 
-# every hook is inlined at numba IR level into the derivative (no calls, no reference counts)
-{chr(10).join(rejit)}
-
-NX = {NX_FIXED + nt + lay.n_states}
+NX = {nx}
 NT = {nt}
+W = {W}
+MODE = {mode}
+
+# every hook in lane form (omnibench.model.lanes), inlined at numba IR level into the derivative
+{hooks}
 
 
 @njit(cache=True, error_model="numpy", fastmath={{"contract"}})
-def _trajectory(b, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF):
-    """Integrate trajectory b (Heun or classical RK4) with the derivative written in place."""
+def _group(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF):
+    """Integrate the W trajectories bs (the first n_valid are real, the rest pad) in lockstep."""
     n_steps = cmd_idx.shape[0]
-    nx = NX
-{indent(chr(10).join(views), 4)}
-    X[:] = X0[b]
-    rv[:] = RV[b]
-    EN[:] = EN_[b]
-    Rm[:, :] = Rm_[b]
-    Sm[:, :] = Sm_[b]
-    Minv[:, :] = Minv_[b]
-    Mb[:, :] = M[b]
-{indent(chr(10).join(p_fill), 4)}
-    ctx[{C.CTX_MODE}] = rv[{rv["mode"]}]
-    ctx[{C.CTX_W}] = rv[{rv["W"]}]
-    ctx[{C.CTX_MASS}] = rv[{rv["mass"]}]
-    ctx[{C.CTX_L}] = rv[{rv["L"]}]
-    ctx[{C.CTX_LW}] = rv[{rv["l"]}]
-    ctx[{C.CTX_R}] = rv[{rv["r"]}]
-    ctx[{C.CTX_G}] = {C.GRAVITY}
-    ctx[{C.CTX_SIGN_PHI}] = rv[{rv["sign_width_phi"]}]
-    ctx[{C.CTX_SIGN_SIGMA}] = rv[{rv["sign_width_sigma"]}]
-    ctx[{C.CTX_V_NOMINAL}] = rv[{rv["V_batt"]}]
-    k_e = rv[{rv["k_e"]}]
-    k_t = rv[{rv["k_t"]}]
-    eta = rv[{rv["eta"]}]
-    R_a = rv[{rv["R_a"]}]
-    V_oc = rv[{rv["V_batt"]}]
-    mass = rv[{rv["mass"]}]
-    I_w = rv[{rv["I_w"]}]
-    ub = U[b] if U.shape[0] > 1 else U[0]
-    substeps = SUB[b] if SUB.shape[0] > 1 else SUB[0]
-    psi_ref = X[2]
-    c_ref = math.cos(psi_ref)
-    s_ref = math.sin(psi_ref)
-    rk4 = method == {METHOD_RK4}
+    # one scratch buffer, every lane array a flat view at a constant offset: LLVM can prove
+    # they never overlap, keeps the index arithmetic constant and vectorises over the lanes
+{views}
+    EN = np.empty(NT)
+    for i in range(NT):
+        EN[i] = EN_[bs[0], i]  # the same in every lane of a group
+    ground = RV[bs[0], MODE] == {ground}
+    ub = np.empty(W, dtype=np.int64)
+    for k in range(W):
+        ub[k] = bs[k] if U.shape[0] > 1 else 0
+{setup}
+    substeps = SUB[bs[0]] if SUB.shape[0] > 1 else SUB[0]
+    rk4 = method == {rk4}
     n_stages = 4 if rk4 else 2
     h = dt / substeps
     r = 0
@@ -344,54 +392,89 @@ def _trajectory(b, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, 
         if n == n_steps:
             if not (n_steps % rec_every == 0 and r < REC.shape[1]):
                 break
-            ucmd = ub[cmd_idx[n_steps - 1]]
+            ci = cmd_idx[n_steps - 1]
             n_sub = 1
         else:
-            ucmd = ub[cmd_idx[n]]
+            ci = cmd_idx[n]
             n_sub = substeps
+        for j in range(4):
+            for k in range(W):
+                ucmd[j * W + k] = U[ub[k], ci, j]
         for sub in range(n_sub):
             t = t0 + n * dt + sub * h
             for stage in range(n_stages):
                 if stage == 0:
                     ts = t
-                    for i in range(NX):
+                    for i in range(NX * W):
                         Xt[i] = X[i]
                 elif rk4 and stage < 3:
                     ts = t + 0.5 * h
                 else:
                     ts = t + h
-{indent(deriv, 16)}
+{deriv}
                 if stage == 0:
                     if sub == 0 and n % rec_every == 0:
-                        _record(REC, b, r, X, aux, Mb, rv)
+                        for k in range(n_valid):
+                            _record(REC, bs[k], r, X, aux, Mb, rv, k)
                         r += 1
                     if n == n_steps:
                         break
                     if rk4:
-                        for i in range(nx):
+                        for i in range(NX * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + 0.5 * h * dX[i]
                     else:
-                        for i in range(nx):
+                        for i in range(NX * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + h * dX[i]
                 elif rk4:
                     if stage == 1:
-                        for i in range(nx):
+                        for i in range(NX * W):
                             acc[i] = acc[i] + 2.0 * dX[i]
                             Xt[i] = X[i] + 0.5 * h * dX[i]
                     elif stage == 2:
-                        for i in range(nx):
+                        for i in range(NX * W):
                             acc[i] = acc[i] + 2.0 * dX[i]
                             Xt[i] = X[i] + h * dX[i]
                     else:
-                        for i in range(nx):
+                        for i in range(NX * W):
                             X[i] += h / 6.0 * (acc[i] + dX[i])
                 else:
-                    for i in range(nx):
+                    for i in range(NX * W):
                         X[i] += 0.5 * h * (acc[i] + dX[i])
-    for i in range(nx):
-        XF[b, i] = X[i]
+    for k in range(n_valid):
+        for i in range(NX):
+            XF[bs[k], i] = X[i * W + k]
+
+
+@njit(cache=True)
+def _groups(RV, EN, SUB):
+    """Trajectories in lane groups of W that share sub-steps, mode and enabled terms (these
+    decide the kernel's branches); a short group is padded with its first trajectory.
+    Returns (groups (G, W), number of real trajectories in each)."""
+    B = RV.shape[0]
+    key = np.empty(B, dtype=np.int64)
+    for b in range(B):
+        kk = SUB[b] if SUB.shape[0] > 1 else SUB[0]
+        kk = kk * 2 + (0 if RV[b, MODE] == {ground} else 1)
+        for i in range(NT):
+            kk = kk * 2 + (1 if EN[b, i] != 0.0 else 0)
+        key[b] = kk
+    order = np.argsort(key, kind="mergesort")
+    groups = np.empty((B, W), dtype=np.int64)
+    counts = np.empty(B, dtype=np.int64)
+    G = 0
+    i = 0
+    while i < B:
+        n = 1
+        while n < W and i + n < B and key[order[i + n]] == key[order[i]]:
+            n += 1
+        for m in range(W):
+            groups[G, m] = order[i + m] if m < n else order[i]
+        counts[G] = n
+        i += n
+        G += 1
+    return groups[:G], counts[:G]
 
 
 @njit(cache=True, parallel=True)
@@ -399,42 +482,44 @@ def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_eve
     """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps.
 
     SUB: sub-steps per physics step, one per trajectory (or a single value for all)."""
-    B = X0.shape[0]
     XF = np.empty_like(X0)
-    for b in prange(B):
-        _trajectory(b, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+    groups, counts = _groups(RV, EN, SUB)
+    for g in prange(groups.shape[0]):
+        _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+               rec_every, REC, XF)
     return XF
 
 
 @njit(cache=True)
 def run_serial(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
-    """`run` on the calling thread only: for one or a few trajectories (the stepping simulator),
+    """`run` on the calling thread only: for one or a few groups (the stepping simulator),
     where waking the worker threads would cost more than the work."""
-    B = X0.shape[0]
     XF = np.empty_like(X0)
-    for b in range(B):
-        _trajectory(b, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+    groups, counts = _groups(RV, EN, SUB)
+    for g in range(groups.shape[0]):
+        _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+               rec_every, REC, XF)
     return XF
 
 
 @njit(cache=True)
-def _record(REC, b, r, X, aux, Mb, rv):
+def _record(REC, b, r, X, aux, Mb, rv, k):
+    """Row r of trajectory b: lane k's state, auxiliary signals and kinetic energy."""
     if REC.shape[1] == 0:
         return
-    nx = X.shape[0]
-    for i in range(nx):
-        REC[b, r, i] = X[i]
+    for i in range(NX):
+        REC[b, r, i] = X[i * W + k]
     ke = 0.0
-    if rv[{rv["mode"]}] == {C.MODE_GROUND}:
+    if rv[MODE * W + k] == {ground}:
         for i in range(3):
-            for k in range(3):
-                ke += 0.5 * X[3 + i] * Mb[i, k] * X[3 + k]
+            for m in range(3):
+                ke += 0.5 * X[(3 + i) * W + k] * Mb[(3 * i + m) * W + k] * X[(3 + m) * W + k]
     else:
         for j in range(4):
-            ke += 0.5 * rv[{rv["I_w"]}] * X[10 + j] * X[10 + j]
-    aux[{NAUX - 1}] = ke
-    for i in range(aux.shape[0]):
-        REC[b, r, nx + i] = aux[i]
+            ke += 0.5 * rv[{i_w} * W + k] * X[(10 + j) * W + k] * X[(10 + j) * W + k]
+    aux[{naux_last} * W + k] = ke
+    for i in range({naux}):
+        REC[b, r, NX + i] = aux[i * W + k]
 '''
 
 

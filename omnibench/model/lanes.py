@@ -1,0 +1,124 @@
+"""Lane form of per-trajectory code: the kernel integrates W trajectories at once.
+
+The kernel keeps a group of W trajectories in structure-of-arrays form (element i of lane k
+at index i * W + k), so that each arithmetic instruction works on W trajectories (AVX2: four
+doubles). Hooks and the kernel's own sections are written for ONE trajectory with flat
+element indexing (`out[j]`, `p[0]`, `ctx[CTX_R]`); this module rewrites such code for lane k:
+every subscript of a lane array, `a[i]`, becomes `a[i * W + k]`. The physics is written once.
+
+Rules for a hook (checked; `HookFormError` names the hook and the rule):
+  - index its array arguments one element at a time (no slices, no `a.shape`, no passing an
+    array on to another function);
+  - return nothing (`return` ends the hook early, for this lane only).
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import inspect
+import textwrap
+import types
+from typing import Callable, Iterable
+
+LANE = "k"  # the lane variable of the generated kernel
+
+
+class HookFormError(ValueError):
+    """A hook (or kernel section) that cannot be rewritten into lane form."""
+
+
+class _ToLane(ast.NodeTransformer):
+    def __init__(self, arrays: set[str], width: int, lane: str, where: str) -> None:
+        self.arrays, self.width, self.lane, self.where = arrays, width, lane, where
+
+    def visit_Subscript(self, node: ast.Subscript) -> ast.AST:
+        self.generic_visit(node)
+        if isinstance(node.value, ast.Name) and node.value.id in self.arrays:
+            if isinstance(node.slice, (ast.Slice, ast.Tuple)):
+                raise HookFormError(f"{self.where}: `{ast.unparse(node)}`: index lane arrays one element at a time")
+            scaled = ast.BinOp(ast.BinOp(node.slice, ast.Mult(), ast.Constant(self.width)), ast.Add(),
+                               ast.Name(self.lane, ast.Load()))
+            node.slice = scaled if self.width > 1 else ast.BinOp(node.slice, ast.Add(), ast.Name(self.lane, ast.Load()))
+        return node
+
+
+def _check_bare(tree: ast.AST, arrays: set[str], where: str, allow_calls: bool) -> None:
+    """Lane arrays may only appear subscripted (or, in kernel sections, as call arguments)."""
+    allowed: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name):
+            allowed.add(id(node.value))
+        if allow_calls and isinstance(node, ast.Call):
+            allowed.update(id(a) for a in node.args if isinstance(a, ast.Name))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name) and node.id in arrays and id(node) not in allowed:
+            raise HookFormError(f"{where}: array `{node.id}` used whole; index it one element at a time")
+
+
+def lane_block(code: str, arrays: Iterable[str], width: int, where: str = "kernel section",
+               uses_lane: bool = False) -> str:
+    """Per-trajectory statements -> `for k in range(width):` over the lanes, arrays re-indexed.
+    `uses_lane`: the code reads the lane number k itself (e.g. to pick its trajectory)."""
+    arrays = set(arrays)
+    tree = ast.parse(textwrap.dedent(code))
+    _check_bare(tree, arrays, where, allow_calls=False)
+    for node in ast.walk(tree):
+        if not uses_lane and isinstance(node, ast.Name) and node.id == LANE:
+            raise HookFormError(f"{where}: `{LANE}` is the lane variable; name the loop otherwise")
+    tree = _ToLane(arrays, width, LANE, where).visit(tree)
+    body = ast.unparse(ast.fix_missing_locations(tree))
+    return f"for {LANE} in range({width}):\n" + textwrap.indent(body, "    ")
+
+
+def lane_function(fn: Callable, name: str, width: int) -> tuple[str, dict[str, object]]:
+    """Source of `name(<fn's arguments>, k)`: fn applied to lane k of lane arrays of width W.
+
+    Every argument of a hook is an array (terms.py). Returns the source and the globals it
+    reads (name -> object from the hook's module), which the generated module must import."""
+    py = getattr(fn, "py_func", fn)
+    where = f"hook {py.__module__}.{py.__name__}"
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(py)))
+    except (OSError, TypeError) as exc:  # pragma: no cover - hooks are always module functions
+        raise HookFormError(f"{where}: source not available ({exc})") from exc
+    func = tree.body[0]
+    if not isinstance(func, ast.FunctionDef):
+        raise HookFormError(f"{where}: not a plain function")
+    arrays = {a.arg for a in func.args.args}
+    if LANE in arrays:
+        raise HookFormError(f"{where}: an argument is named `{LANE}`, the lane variable")
+    for node in ast.walk(func):
+        if isinstance(node, ast.Return) and node.value is not None:
+            raise HookFormError(f"{where}: hooks return nothing (they write into their arrays)")
+        if isinstance(node, ast.Name) and node.id == LANE:
+            raise HookFormError(f"{where}: uses the name `{LANE}`, the lane variable")
+    _check_bare(func, arrays, where, allow_calls=False)
+    func = _ToLane(arrays, width, LANE, where).visit(func)
+    func.decorator_list = []
+    func.name = name
+    func.args.args.append(ast.arg(LANE))
+    func.returns = None
+    ast.fix_missing_locations(func)
+    local = {a.arg for a in func.args.args}
+    for node in ast.walk(func):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            local.add(node.id)
+    needed: dict[str, object] = {}
+    for node in ast.walk(func):
+        if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load) and node.id not in local:
+            if node.id in py.__globals__:
+                needed[node.id] = py.__globals__[node.id]
+            elif not hasattr(builtins, node.id):
+                raise HookFormError(f"{where}: unknown name `{node.id}`")
+    return ast.unparse(func), needed
+
+
+def import_line(name: str, obj: object, module: str) -> str:
+    """The import that binds `name` to `obj` in the generated module."""
+    if isinstance(obj, types.ModuleType):
+        return f"import {obj.__name__}" if obj.__name__ == name else f"import {obj.__name__} as {name}"
+    home = getattr(getattr(obj, "py_func", obj), "__module__", None)
+    if isinstance(obj, (int, float, str, bool)) or home is None:
+        return f"from {module} import {name}"
+    return f"from {home} import {getattr(getattr(obj, 'py_func', obj), '__name__', name)} as {name}"
