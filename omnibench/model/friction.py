@@ -36,9 +36,9 @@ def roller_friction_force(out, sigma, FN, ctx, p):
 @njit(cache=True)
 def rolling_resistance_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     """-F_N C_r r sign(phi_dot) on each axle when the wheel rolls on the floor, N m."""
-    if ctx[CTX_MODE] != MODE_GROUND:
-        return
-    C_r = p[0]
+    # a factor, not an early return: branch-free code vectorises over the kernel's lanes
+    on_floor = 1.0 if ctx[CTX_MODE] == MODE_GROUND else 0.0
+    C_r = p[0] * on_floor
     r = ctx[CTX_R]
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):

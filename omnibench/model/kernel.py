@@ -102,7 +102,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         ("X", nx), ("Xt", nx), ("dX", nx), ("acc", nx), ("aux", NAUX), ("rv", len(RV_NAMES)),
         ("Rm", 12), ("Sm", 12), ("Minv", 9), ("Mb", 9), ("ctx", C.CTX_SIZE), ("elec", C.ELEC_SIZE),
         ("FN", 4), ("u", 4), ("ucmd", 4), ("phid", 4), ("sig", 4), ("tau", 4), ("fr", 4), ("cur", 4),
-        ("tmp", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
+        ("tmp", 4), ("gw", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
         ("xs_none", 0),
     ]
     for k, term in enumerate(lay.terms):
@@ -227,19 +227,19 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
             num = rv[{rv["V_batt"]}] - R_b * I_q
             den = 1.0
             for j in range(4):
-                Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
-                num += R_b * u[j] * k_e * phid[j] / Rj
-                den += R_b * u[j] * u[j] / Rj
+                G = 1.0 / (R_a * elec[{C.ELEC_RA_SCALE} + j])  # winding conductance, S
+                gw[j] = G
+                num += R_b * u[j] * k_e * phid[j] * G
+                den += R_b * u[j] * u[j] * G
             V = num / den
             I_batt = I_q
             copper = 0.0
             conv = 0.0
             for j in range(4):
-                Rj = R_a * elec[{C.ELEC_RA_SCALE} + j]
-                c = (u[j] * V - k_e * phid[j]) / Rj
+                c = (u[j] * V - k_e * phid[j]) * gw[j]
                 cur[j] = c
                 I_batt += u[j] * c
-                copper += c * c * Rj
+                copper += c * c * (R_a * elec[{C.ELEC_RA_SCALE} + j])
                 conv += (k_e - eta * k_t) * c * phid[j]
                 tau[j] = eta * k_t * c
             dX[{X_E_BATT}] = V * I_batt

@@ -271,14 +271,16 @@ def simulate_batch(
     n_rec = n_steps // record_every + 1
     columns = signal_names(lay)
     REC = np.zeros((B, n_rec, len(columns)))
-    # hand out trajectories in small chunks, so that a thread slowed by other work on the
-    # machine does not leave the others idle at the end
+    # the kernel integrates lane groups of kernel.WIDTH trajectories; hand the groups out in
+    # small chunks, so that a thread slowed by other work on the machine does not leave the
+    # others idle at the end
     args = (X0, RV, P, EN, Rm, Sm, Minv, M, idx, U, 0.0, dt, sub, METHODS[method], record_every, REC)
-    if B < 2 * numba.get_num_threads():
-        mod.run_serial(*args)  # too few to share out: waking threads would cost more
+    groups = -(-B // kernel.WIDTH)
+    if groups < 2:
+        mod.run_serial(*args)  # one group: waking the worker threads would cost more than it saves
     else:
         previous = numba.get_parallel_chunksize()
-        numba.set_parallel_chunksize(max(1, B // (16 * numba.get_num_threads())))
+        numba.set_parallel_chunksize(max(1, groups // (16 * numba.get_num_threads())))
         try:
             mod.run(*args)
         finally:

@@ -21,6 +21,10 @@ states, `ctx` the read-only context of `omnibench.model.context`):
 
 `out` arrays arrive zeroed; the kernel adds them up and books each term's power so the
 energy balance names every term.
+
+Hooks are written for one trajectory; the kernel runs them on lane groups of trajectories
+after `omnibench.model.lanes` rewrites them from their source. So a hook indexes its arrays
+one element at a time (no slices, no `.shape`, no passing an array on) and returns nothing.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from omnibench.model import Scenario, default_robot, simulate, simulate_batch
+from omnibench.model import kernel
 from omnibench.model.context import GRAVITY
 from omnibench.model.simulator import prepare, stable_substeps
 
@@ -115,6 +116,22 @@ def test_robot_inside_mixed_batch_equals_its_single_trajectory(method):
     for k, (robot, scenario) in enumerate(zip(robots, scenarios)):
         single = simulate_batch(robot, scenario, T_CMD, U_CMD, 2.5, method=method, record_every=5)
         np.testing.assert_array_equal(batch.array[k], single.array[0], err_msg=f"robot {k}")
+
+
+def test_full_and_padded_lane_groups_equal_single_trajectories():
+    """Six parameter sets that share one lane group key: a full group of kernel.WIDTH plus a
+    padded one. Each must give exactly its own single-trajectory numbers, in either order."""
+    base = default_robot()
+    robots = [base.replace(a=base.a * s, b_r=base.b_r * (2 - s)) for s in (0.9, 0.95, 1.0, 1.05, 1.1, 1.15)]
+    assert len(robots) > kernel.WIDTH
+    batch = simulate_batch(robots, Scenario(), T_CMD, U_CMD, 1.5, method="rk4", record_every=10)
+    reverse = simulate_batch(robots[::-1], Scenario(), T_CMD, U_CMD, 1.5, method="rk4", record_every=10)
+    for k, robot in enumerate(robots):
+        single = simulate_batch(robot, Scenario(), T_CMD, U_CMD, 1.5, method="rk4", record_every=10)
+        np.testing.assert_array_equal(batch.array[k], single.array[0], err_msg=f"robot {k}")
+        np.testing.assert_array_equal(reverse.array[len(robots) - 1 - k], single.array[0], err_msg=f"robot {k}")
+    # and the lanes really differ (a pad or a shared lane would make neighbours identical)
+    assert len({float(batch.array[k, -1, 0]) for k in range(len(robots))}) == len(robots)
 
 
 @pytest.mark.parametrize("method", ["rk4", "heun"])
