@@ -29,13 +29,14 @@ from omnibench.model.context import GRAVITY
 from omnibench.model.friction import CORE_PARAMS
 from omnibench.model.robot import Robot
 from omnibench.model.scenario import Scenario
+from omnibench.model.stiffness import decay_rates
 from omnibench.model.terms import Layout, layout
 
 METHODS = {"heun": kernel.METHOD_HEUN, "rk4": kernel.METHOD_RK4}
 DEFAULT_METHOD = "rk4"
 # Largest h * lambda allowed per method, with a margin below the real-axis stability limit of
 # each explicit scheme (Heun / explicit RK2: 2.0; classical RK4: 2.785). lambda is the largest
-# decay rate of the friction and back-EMF damping near zero speed (see `_stiffness`).
+# decay rate of the model's speeds at rest, every enabled term counted (`stiffness.decay_rates`).
 STABILITY_LIMITS = {"heun": 1.8, "rk4": 2.5}
 STABILITY_LIMIT = STABILITY_LIMITS[DEFAULT_METHOD]
 
@@ -85,7 +86,8 @@ def prepare(robot: Robot, scenario: Scenario, lay: Layout | None = None) -> Prep
     """Flatten (robot, scenario) into the kernel's per-trajectory arrays."""
     lay = lay or layout()
     p = _prepare(robot, scenario, lay)
-    lam = _stiffness_many(p.rv[None], p.P[None], p.Rm[None], p.Sm[None], p.M[None], lay)[0]
+    lam = decay_rates(p.x0[None], p.rv[None], p.P[None], p.EN[None], p.Rm[None], p.Sm[None], p.Minv[None],
+                      p.M[None], lay)[0]
     return dataclasses.replace(p, substeps_lambda=float(lam))
 
 
@@ -140,33 +142,6 @@ def _mechanics(L, l, r, alpha, mass, I_z, I_w):
     Sm = geometry.slip_matrix(L, l, alpha)
     M = np.diag([mass, mass, I_z]) + I_w * Rm.T @ Rm
     return Rm, Sm, M, np.linalg.inv(M)
-
-
-def _stiffness_many(rv, P, Rm, Sm, M, lay: Layout) -> np.ndarray:
-    """Largest decay rate (1/s) of the linearised friction and back-EMF damping near zero speed,
-    for B prepared trajectories at once (arrays stacked on axis 0). The paper's terms only:
-    at zero speed the regularised sign has slope 1/eps, so b/eps acts as a viscous coefficient."""
-    _, _, index = _template(lay)
-    col = {name: k for k, name in enumerate(kernel.RV_NAMES)}
-    par = {name: slots[name] for term, (_, slots) in index.items() for name in slots
-           if term in ("transmission_friction", "roller_friction", "rolling_resistance")}
-    g = lambda name: rv[:, col[name], None]  # noqa: E731
-    q = lambda name: P[:, par[name], None]  # noqa: E731
-    FN = rv[:, [col["FN1"], col["FN2"], col["FN3"], col["FN4"]]]
-    d_w = g("eta") * g("k_t") * g("k_e") / g("R_a") + (1 + q("c") * FN) * (q("a") + q("b") / g("sign_width_phi"))
-    lam = np.empty(rv.shape[0])
-    upside = rv[:, col["mode"]] != 0.0
-    if upside.any():
-        lam[upside] = d_w[upside].max(axis=1) / rv[upside, col["I_w"]]
-    ground = ~upside
-    if ground.any():
-        gr = lambda a: a[ground]  # noqa: E731
-        dw = gr(d_w) + gr(FN) * gr(q("C_r")) * gr(g("r")) / gr(g("sign_width_phi"))
-        dr = (1 + gr(q("c_r")) * gr(FN)) * (gr(q("a_r")) + gr(q("b_r")) / gr(g("sign_width_sigma")))
-        K = (np.einsum("bji,bj,bjk->bik", gr(Rm), dw, gr(Rm))
-             + np.einsum("bji,bj,bjk->bik", gr(Sm), dr, gr(Sm)))
-        lam[ground] = np.real(np.linalg.eigvals(np.linalg.solve(gr(M), K))).max(axis=1)
-    return lam
 
 
 def stable_substeps(lam: float, dt: float, method: str = DEFAULT_METHOD) -> int:
@@ -266,7 +241,7 @@ def simulate_batch(
     if substeps:
         sub = np.array([int(substeps)], dtype=np.int64)
     else:
-        lam = _stiffness_many(RV, P, Rm, Sm, M, lay)
+        lam = decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay)
         sub = np.array([stable_substeps(x, dt, method) for x in lam], dtype=np.int64)
     n_rec = n_steps // record_every + 1
     columns = signal_names(lay)

@@ -158,6 +158,35 @@ def test_substeps_respect_each_methods_stability_limit():
             assert lam * 1e-3 / n < limit, (scenario, method)
 
 
+def test_stiffness_at_rest_equals_the_closed_form_of_the_papers_terms():
+    """Upside down the wheels are decoupled: each speed decays at rate
+    (eta k_t k_e / R_a + (1 + c F_N)(a + b / eps)) / I_w near zero speed."""
+    robot = default_robot()
+    FN = np.asarray(robot.wheel_mass) * GRAVITY
+    rate = (robot.eta * robot.k_t * robot.k_e / robot.R_a
+            + (1 + robot.c * FN) * (robot.a + robot.b / robot.sign_width_phi)) / robot.I_w
+    assert prepare(robot, Scenario(mode="upside_down")).substeps_lambda == pytest.approx(rate.max(), rel=1e-5)
+
+
+@pytest.mark.parametrize("method", ["rk4", "heun"])
+def test_an_effects_stiffness_is_counted_in_the_substeps(method):
+    """Extra Coulomb friction of 0.5 N m on one wheel (per_wheel_friction, an effect the
+    paper's formula never saw) almost doubles that wheel's decay rate at rest. The sub-step rule
+    must count it, or the wheel chatters around zero speed instead of stopping."""
+    robot = default_robot()
+    plain = Scenario(mode="upside_down")
+    stiff = Scenario(mode="upside_down", effects={"per_wheel_friction": {"db_2": 0.5}})
+    FN2 = robot.wheel_mass[1] * GRAVITY
+    rate2 = (robot.eta * robot.k_t * robot.k_e / robot.R_a
+             + (1 + robot.c * FN2) * (robot.a + robot.b / robot.sign_width_phi) + 0.5 / robot.sign_width_phi) / robot.I_w
+    assert prepare(robot, stiff).substeps_lambda == pytest.approx(rate2, rel=1e-5)
+    assert stable_substeps(prepare(robot, stiff).substeps_lambda, 1e-3, method) > \
+        stable_substeps(prepare(robot, plain).substeps_lambda, 1e-3, method)
+    df = simulate(robot, stiff, [0.0, 0.5], [[0.4, 0.6, 0.2, 0.5], [0.0, 0.0, 0.0, 0.0]], 1.5, method=method)
+    assert df.loc[df["t"] < 0.5, "phi_dot2"].abs().max() > 1.0
+    assert df.loc[df["t"] > 1.2, "phi_dot2"].abs().max() < 1e-3
+
+
 @pytest.mark.parametrize("mode", ["ground", "upside_down"])
 def test_energy_balance_with_every_registered_term(mode):
     """Every hook kind (normal force, duty, electrical, wheel torque, roller force, body force,
