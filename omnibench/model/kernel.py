@@ -114,10 +114,11 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
 
     hook_defs: list[str] = []
     hook_globals: dict[str, tuple[object, str]] = {}
-    calls: dict[str, list[str]] = {h: [] for h in HOOKS}
+    # per-term pieces, each tagged with whether it belongs to one of the paper's terms
+    calls: dict[str, list[tuple[bool, str]]] = {h: [] for h in HOOKS}
     p_fill: list[str] = []
-    s_load: list[str] = []
-    s_store: list[str] = []
+    s_load: list[tuple[bool, str]] = []
+    s_store: list[tuple[bool, str]] = []
     for k, term in enumerate(lay.terms):
         p0 = lay.param_offset[k]
         s0 = NX_FIXED + nt + lay.state_offset[k]
@@ -134,17 +135,19 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
             hook_defs.append('@njit(inline="always", error_model="numpy", fastmath={"contract"})\n' + src)
         xs = f"xs{k}" if ns else "xs_none"
         if ns:
-            s_load.append(L(f"for i in range({ns}):\n    {xs}[i] = Xt[{s0} + i]"))
-        en = f"EN[{k}] != 0.0"
+            s_load.append((term.core, L(f"for i in range({ns}):\n    {xs}[i] = Xt[{s0} + i]")))
+        # the paper's terms are always on (prepare enables them for every trajectory): no
+        # branch, so LLVM can share their common work (the regularised sign of the wheel speeds)
+        en = "True" if term.core else f"EN[{k}] != 0.0"
         lanes_loop = f"for k in range({W}):"
         for hook in term.hooks:
             a = alias_name(k, hook)
             if hook == "normal_force":
-                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(FN, ctx, {p}, k)")
+                calls[hook].append((term.core, f"if {en}:\n    {lanes_loop}\n        {a}(FN, ctx, {p}, k)"))
             elif hook == "duty":
-                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(u, ctx, {p}, k)")
+                calls[hook].append((term.core, f"if {en}:\n    {lanes_loop}\n        {a}(u, ctx, {p}, k)"))
             elif hook == "electrical":
-                calls[hook].append(f"if {en}:\n    {lanes_loop}\n        {a}(elec, {xs}, ctx, {p}, k)")
+                calls[hook].append((term.core, f"if {en}:\n    {lanes_loop}\n        {a}(elec, {xs}, ctx, {p}, k)"))
             elif hook in ("wheel_torque", "roller_force", "body_force"):
                 n, out, speed, total, cond, args = {
                     "wheel_torque": (4, "tmp", "phid", "tau", en, f"tmp, phi, phid, FN, cur, {xs}, ctx, {p}"),
@@ -158,23 +161,31 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
                         pw += {out}[j] * {speed}[j]
                     dX[{NX_FIXED + k}] -= pw
                 """)
-                calls[hook].append(
+                calls[hook].append((term.core,
                     f"if {cond}:\n    for i in range({n * W}):\n        {out}[i] = 0.0\n"
-                    f"    {lanes_loop}\n        {a}({args}, k)\n" + _indent(book, 4))
+                    f"    {lanes_loop}\n        {a}({args}, k)\n" + _indent(book, 4)))
         if ns:
             zero = L(f"for i in range({ns}):\n    dX[{s0} + i] = 0.0")
             if "state_derivative" in term.hooks:
                 a = alias_name(k, "state_derivative")
                 copy = L(f"for i in range({ns}):\n    dX[{s0} + i] = dxs{k}[i]")
-                s_store.append(
+                s_store.append((term.core,
                     f"if {en}:\n    for i in range({ns * W}):\n        dxs{k}[i] = 0.0\n"
                     f"    {lanes_loop}\n        {a}(dxs{k}, {xs}, cur, phid, elec, ctx, {p}, k)\n"
-                    + _indent(copy, 4) + "\nelse:\n" + _indent(zero, 4))
+                    + _indent(copy, 4) + "\nelse:\n" + _indent(zero, 4)))
             else:
-                s_store.append(zero)
+                s_store.append((term.core, zero))
 
-    body = {h: "\n".join(c) for h, c in calls.items()}
-    deriv = "\n".join([
+    def derivative(paper_only: bool) -> str:
+        """The derivative's code; paper_only: without any effect's code (groups with every
+        effect off run this lean copy: the hot loop stays small and fast)."""
+        keep = lambda pieces: [text for core, text in pieces if core or not paper_only]  # noqa: E731
+        body = {h: "\n".join(keep(c)) for h, c in calls.items()}
+        text = _derivative(body, keep(s_load), keep(s_store), paper_only)
+        return "\n".join(line for line in text.splitlines() if line.strip())
+
+    def _derivative(body: dict[str, str], s_load: list[str], s_store: list[str], paper_only: bool) -> str:
+        return "\n".join([
         "# ---- derivative dX = f(Xt, ucmd, ts) of every lane; aux gets the auxiliary signals ----",
         L(f"""
             ctx[{C.CTX_T}] = ts
@@ -222,8 +233,16 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
             k_t = rv[{rv["k_t"]}]
             eta = rv[{rv["eta"]}]
             R_a = rv[{rv["R_a"]}]
-            R_b = elec[{C.ELEC_R_BATT}]
             I_q = elec[{C.ELEC_I_Q}]
+        """ + (f"""
+            # the paper's terms only: no battery resistance and every winding at R_a, so the
+            # general solution below reduces exactly to V = V_oc and one conductance 1 / R_a
+            V = rv[{rv["V_batt"]}]
+            G = 1.0 / R_a
+            for j in range(4):
+                gw[j] = G
+        """ if paper_only else f"""
+            R_b = elec[{C.ELEC_R_BATT}]
             num = rv[{rv["V_batt"]}] - R_b * I_q
             den = 1.0
             for j in range(4):
@@ -232,6 +251,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
                 num += R_b * u[j] * k_e * phid[j] * G
                 den += R_b * u[j] * u[j] * G
             V = num / den
+        """) + f"""
             I_batt = I_q
             copper = 0.0
             conv = 0.0
@@ -315,7 +335,6 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         """), 4),
         "# ---- end of derivative ----",
     ])
-    deriv = "\n".join(line for line in deriv.splitlines() if line.strip())
 
     views = [f"SB = np.zeros({sum(n for _, n in slots) * W})"]
     off, xt = 0, 0
@@ -345,10 +364,17 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
     ]), uses_lane=True)
     imports = sorted({lanes.import_line(name, obj, home) for name, (obj, home) in hook_globals.items()}
                      - {"import math", "import numpy as np"})
+    groups = "\n\n\n".join(
+        _GROUP_TEMPLATE.format(name=name, what=what, views=_indent("\n".join(views), 4), setup=_indent(setup, 4),
+                               deriv=_indent(derivative(paper_only), 16), ground=C.MODE_GROUND, rk4=METHOD_RK4)
+        for name, what, paper_only in (
+            ("_group", "every term", False),
+            ("_group_paper", "the paper's terms only (every effect is off in the group)", True)))
+    paper = ", ".join("1" if t.core else "0" for t in lay.terms)
     return _TEMPLATE.format(
         imports="\n".join(imports), nx=nx, nt=nt, W=W, mode=rv["mode"], ground=C.MODE_GROUND,
-        rk4=METHOD_RK4, naux=NAUX, naux_last=NAUX - 1, i_w=rv["I_w"], hooks=("\n" * 3).join(hook_defs),
-        views=_indent("\n".join(views), 4), setup=_indent(setup, 4), deriv=_indent(deriv, 16))
+        naux=NAUX, naux_last=NAUX - 1, i_w=rv["I_w"], hooks=("\n" * 3).join(hook_defs), groups=groups,
+        paper=paper)
 
 
 _TEMPLATE = '''\
@@ -362,14 +388,110 @@ NX = {nx}
 NT = {nt}
 W = {W}
 MODE = {mode}
+PAPER = np.array([{paper}], dtype=np.bool_)  # which terms are the paper's own (always on)
 
 # every hook in lane form (omnibench.model.lanes), inlined at numba IR level into the derivative
 {hooks}
 
 
+{groups}
+
+
+@njit(cache=True)
+def _groups(RV, EN, SUB):
+    """Trajectories in lane groups of W that share sub-steps, mode and enabled terms (these
+    decide the kernel's branches); a short group is padded with its first trajectory.
+    Returns (groups (G, W), number of real trajectories in each, whether only the paper's
+    terms are on in it)."""
+    B = RV.shape[0]
+    key = np.empty(B, dtype=np.int64)
+    for b in range(B):
+        kk = SUB[b] if SUB.shape[0] > 1 else SUB[0]
+        kk = kk * 2 + (0 if RV[b, MODE] == {ground} else 1)
+        for i in range(NT):
+            kk = kk * 2 + (1 if EN[b, i] != 0.0 else 0)
+        key[b] = kk
+    order = np.argsort(key, kind="mergesort")
+    groups = np.empty((B, W), dtype=np.int64)
+    counts = np.empty(B, dtype=np.int64)
+    paper = np.empty(B, dtype=np.bool_)
+    G = 0
+    i = 0
+    while i < B:
+        n = 1
+        while n < W and i + n < B and key[order[i + n]] == key[order[i]]:
+            n += 1
+        for m in range(W):
+            groups[G, m] = order[i + m] if m < n else order[i]
+        counts[G] = n
+        paper[G] = True
+        for t in range(NT):
+            if EN[order[i], t] != 0.0 and not PAPER[t]:
+                paper[G] = False
+        i += n
+        G += 1
+    return groups[:G], counts[:G], paper[:G]
+
+
+@njit(cache=True, parallel=True)
+def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
+    """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps.
+
+    SUB: sub-steps per physics step, one per trajectory (or a single value for all)."""
+    XF = np.empty_like(X0)
+    groups, counts, paper = _groups(RV, EN, SUB)
+    for g in prange(groups.shape[0]):
+        if paper[g]:
+            _group_paper(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+                         rec_every, REC, XF)
+        else:
+            _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+                   rec_every, REC, XF)
+    return XF
+
+
+@njit(cache=True)
+def run_serial(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
+    """`run` on the calling thread only: for one or a few groups (the stepping simulator),
+    where waking the worker threads would cost more than the work."""
+    XF = np.empty_like(X0)
+    groups, counts, paper = _groups(RV, EN, SUB)
+    for g in range(groups.shape[0]):
+        if paper[g]:
+            _group_paper(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+                         rec_every, REC, XF)
+        else:
+            _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
+                   rec_every, REC, XF)
+    return XF
+
+
+@njit(cache=True)
+def _record(REC, b, r, X, aux, Mb, rv, k):
+    """Row r of trajectory b: lane k's state, auxiliary signals and kinetic energy."""
+    if REC.shape[1] == 0:
+        return
+    for i in range(NX):
+        REC[b, r, i] = X[i * W + k]
+    ke = 0.0
+    if rv[MODE * W + k] == {ground}:
+        for i in range(3):
+            for m in range(3):
+                ke += 0.5 * X[(3 + i) * W + k] * Mb[(3 * i + m) * W + k] * X[(3 + m) * W + k]
+    else:
+        for j in range(4):
+            ke += 0.5 * rv[{i_w} * W + k] * X[(10 + j) * W + k] * X[(10 + j) * W + k]
+    aux[{naux_last} * W + k] = ke
+    for i in range({naux}):
+        REC[b, r, NX + i] = aux[i * W + k]
+'''
+
+
+_GROUP_TEMPLATE = '''\
 @njit(cache=True, error_model="numpy", fastmath={{"contract"}})
-def _group(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF):
-    """Integrate the W trajectories bs (the first n_valid are real, the rest pad) in lockstep."""
+def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF):
+    """Integrate the W trajectories bs (the first n_valid are real, the rest pad) in lockstep;
+    the derivative with {what}."""
     n_steps = cmd_idx.shape[0]
     # one scratch buffer, every lane array a flat view at a constant offset: LLVM can prove
     # they never overlap, keeps the index arithmetic constant and vectorises over the lanes
@@ -445,81 +567,6 @@ def _group(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
     for k in range(n_valid):
         for i in range(NX):
             XF[bs[k], i] = X[i * W + k]
-
-
-@njit(cache=True)
-def _groups(RV, EN, SUB):
-    """Trajectories in lane groups of W that share sub-steps, mode and enabled terms (these
-    decide the kernel's branches); a short group is padded with its first trajectory.
-    Returns (groups (G, W), number of real trajectories in each)."""
-    B = RV.shape[0]
-    key = np.empty(B, dtype=np.int64)
-    for b in range(B):
-        kk = SUB[b] if SUB.shape[0] > 1 else SUB[0]
-        kk = kk * 2 + (0 if RV[b, MODE] == {ground} else 1)
-        for i in range(NT):
-            kk = kk * 2 + (1 if EN[b, i] != 0.0 else 0)
-        key[b] = kk
-    order = np.argsort(key, kind="mergesort")
-    groups = np.empty((B, W), dtype=np.int64)
-    counts = np.empty(B, dtype=np.int64)
-    G = 0
-    i = 0
-    while i < B:
-        n = 1
-        while n < W and i + n < B and key[order[i + n]] == key[order[i]]:
-            n += 1
-        for m in range(W):
-            groups[G, m] = order[i + m] if m < n else order[i]
-        counts[G] = n
-        i += n
-        G += 1
-    return groups[:G], counts[:G]
-
-
-@njit(cache=True, parallel=True)
-def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
-    """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps.
-
-    SUB: sub-steps per physics step, one per trajectory (or a single value for all)."""
-    XF = np.empty_like(X0)
-    groups, counts = _groups(RV, EN, SUB)
-    for g in prange(groups.shape[0]):
-        _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-               rec_every, REC, XF)
-    return XF
-
-
-@njit(cache=True)
-def run_serial(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
-    """`run` on the calling thread only: for one or a few groups (the stepping simulator),
-    where waking the worker threads would cost more than the work."""
-    XF = np.empty_like(X0)
-    groups, counts = _groups(RV, EN, SUB)
-    for g in range(groups.shape[0]):
-        _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-               rec_every, REC, XF)
-    return XF
-
-
-@njit(cache=True)
-def _record(REC, b, r, X, aux, Mb, rv, k):
-    """Row r of trajectory b: lane k's state, auxiliary signals and kinetic energy."""
-    if REC.shape[1] == 0:
-        return
-    for i in range(NX):
-        REC[b, r, i] = X[i * W + k]
-    ke = 0.0
-    if rv[MODE * W + k] == {ground}:
-        for i in range(3):
-            for m in range(3):
-                ke += 0.5 * X[(3 + i) * W + k] * Mb[(3 * i + m) * W + k] * X[(3 + m) * W + k]
-    else:
-        for j in range(4):
-            ke += 0.5 * rv[{i_w} * W + k] * X[(10 + j) * W + k] * X[(10 + j) * W + k]
-    aux[{naux_last} * W + k] = ke
-    for i in range({naux}):
-        REC[b, r, NX + i] = aux[i * W + k]
 '''
 
 
