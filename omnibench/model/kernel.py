@@ -433,6 +433,16 @@ def _groups(RV, EN, SUB):
     return groups[:G], counts[:G], paper[:G]
 
 
+@njit(cache=True)
+def _run_group(bs, n_valid, paper, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every,
+               REC, XF):
+    """One lane group, with the lean copy of the loop when only the paper's terms are on."""
+    if paper:
+        _group_paper(bs, n_valid, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+    else:
+        _group(bs, n_valid, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+
+
 @njit(cache=True, parallel=True)
 def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC):
     """Integrate B trajectories for len(cmd_idx) steps of dt; record every rec_every steps.
@@ -441,12 +451,8 @@ def run(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_eve
     XF = np.empty_like(X0)
     groups, counts, paper = _groups(RV, EN, SUB)
     for g in prange(groups.shape[0]):
-        if paper[g]:
-            _group_paper(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-                         rec_every, REC, XF)
-        else:
-            _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-                   rec_every, REC, XF)
+        _run_group(groups[g], counts[g], paper[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB,
+                   method, rec_every, REC, XF)
     return XF
 
 
@@ -457,12 +463,8 @@ def run_serial(X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, 
     XF = np.empty_like(X0)
     groups, counts, paper = _groups(RV, EN, SUB)
     for g in range(groups.shape[0]):
-        if paper[g]:
-            _group_paper(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-                         rec_every, REC, XF)
-        else:
-            _group(groups[g], counts[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method,
-                   rec_every, REC, XF)
+        _run_group(groups[g], counts[g], paper[g], X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB,
+                   method, rec_every, REC, XF)
     return XF
 
 
