@@ -15,7 +15,7 @@ Prints, each with its target (issue 2):
 Timings are the best of a few repeats (wall clock, all cores), with the CPU time of that run:
 the 2-core machine is shared, so the load average is printed and the aggregate figure is also
 given as "with the cores free" = simulated seconds / (CPU seconds / cores). The first run on a
-machine also compiles the kernel (about 25 s of CPU, reported separately, not in the figures).
+machine also compiles the kernel (about 35 s of CPU, reported separately, not in the figures).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Generation keeps the integrator ignorant of which effects exist: every registered term is
 called through its hooks when it is enabled for a trajectory. The generated source is written
 to a cache folder keyed by a hash of the terms' code, so numba's on-disk cache survives across
-processes and the compile (about a minute of CPU with the effects library) happens once per
+processes and the compile (about 35 s of CPU with the effects library) happens once per
 machine and code version.
 
 How it is made fast (issue 2; `benchmarks/simulate.py` measures it):
@@ -16,6 +16,8 @@ How it is made fast (issue 2; `benchmarks/simulate.py` measures it):
     lane, so a trajectory gives the same numbers alone or inside any batch;
   - every hook is compiled with numba `inline="always"` and the derivative is written straight
     into the stage loop: no call, no reference count, nothing allocated per step;
+  - groups with every effect off run a lean copy of the loop generated without the effects'
+    code (inlined but switched-off effects still cost the hot loop ~20 %);
   - every lane array is a flat view at a constant offset of one scratch buffer, so LLVM knows
     they never overlap and the index arithmetic is constant (numba's reshaped views carry
     their shape at run time, which defeats the vectoriser);
@@ -364,13 +366,19 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
     ]), uses_lane=True)
     imports = sorted({lanes.import_line(name, obj, home) for name, (obj, home) in hook_globals.items()}
                      - {"import math", "import numpy as np"})
+    paper = ", ".join("1" if t.core else "0" for t in lay.terms)
+    # the lean copy integrates only the state entries up to the last one the paper's terms
+    # change (an effect's energy and states keep their initial values while it is off)
+    paper_entries = 1 + max([NX_FIXED - 1] + [NX_FIXED + k for k, t in enumerate(lay.terms) if t.core]
+                            + [NX_FIXED + nt + lay.state_offset[k] + t.n_states - 1
+                               for k, t in enumerate(lay.terms) if t.core and t.n_states])
     groups = "\n\n\n".join(
         _GROUP_TEMPLATE.format(name=name, what=what, views=_indent("\n".join(views), 4), setup=_indent(setup, 4),
-                               deriv=_indent(derivative(paper_only), 16), ground=C.MODE_GROUND, rk4=METHOD_RK4)
+                               deriv=_indent(derivative(paper_only), 16), ground=C.MODE_GROUND, rk4=METHOD_RK4,
+                               n_int=paper_entries if paper_only else nx)
         for name, what, paper_only in (
             ("_group", "every term", False),
             ("_group_paper", "the paper's terms only (every effect is off in the group)", True)))
-    paper = ", ".join("1" if t.core else "0" for t in lay.terms)
     return _TEMPLATE.format(
         imports="\n".join(imports), nx=nx, nt=nt, W=W, mode=rv["mode"], ground=C.MODE_GROUND,
         naux=NAUX, naux_last=NAUX - 1, i_w=rv["I_w"], hooks=("\n" * 3).join(hook_defs), groups=groups,
@@ -506,6 +514,8 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
     for k in range(W):
         ub[k] = bs[k] if U.shape[0] > 1 else 0
 {setup}
+    for i in range(NX * W):
+        Xt[i] = X[i]  # entries this copy does not integrate keep Xt = X throughout
     substeps = SUB[bs[0]] if SUB.shape[0] > 1 else SUB[0]
     rk4 = method == {rk4}
     n_stages = 4 if rk4 else 2
@@ -529,7 +539,7 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
             for stage in range(n_stages):
                 if stage == 0:
                     ts = t
-                    for i in range(NX * W):
+                    for i in range({n_int} * W):
                         Xt[i] = X[i]
                 elif rk4 and stage < 3:
                     ts = t + 0.5 * h
@@ -544,27 +554,27 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                     if n == n_steps:
                         break
                     if rk4:
-                        for i in range(NX * W):
+                        for i in range({n_int} * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + 0.5 * h * dX[i]
                     else:
-                        for i in range(NX * W):
+                        for i in range({n_int} * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + h * dX[i]
                 elif rk4:
                     if stage == 1:
-                        for i in range(NX * W):
+                        for i in range({n_int} * W):
                             acc[i] = acc[i] + 2.0 * dX[i]
                             Xt[i] = X[i] + 0.5 * h * dX[i]
                     elif stage == 2:
-                        for i in range(NX * W):
+                        for i in range({n_int} * W):
                             acc[i] = acc[i] + 2.0 * dX[i]
                             Xt[i] = X[i] + h * dX[i]
                     else:
-                        for i in range(NX * W):
+                        for i in range({n_int} * W):
                             X[i] += h / 6.0 * (acc[i] + dX[i])
                 else:
-                    for i in range(NX * W):
+                    for i in range({n_int} * W):
                         X[i] += 0.5 * h * (acc[i] + dX[i])
     for k in range(n_valid):
         for i in range(NX):
