@@ -83,17 +83,6 @@ def _indent(text: str, n: int) -> str:
     return textwrap.indent(text, " " * n)
 
 
-class _Sections:
-    """Builds the derivative from group-level code and per-trajectory blocks L(...), which
-    become loops over the lanes (`lanes.lane_block`)."""
-
-    def __init__(self, arrays: set[str], width: int) -> None:
-        self.arrays, self.width = arrays, width
-
-    def L(self, code: str, uses_lane: bool = False) -> str:
-        return lanes.lane_block(textwrap.dedent(code).strip("\n"), self.arrays, self.width, uses_lane=uses_lane)
-
-
 def _source(lay: Layout, width: int = WIDTH) -> str:
     """Python source of the kernel module for this layout, `width` lanes per group."""
     C, rv, W = context, RV, width
@@ -112,7 +101,10 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         if term.n_states:
             slots += [(f"xs{k}", term.n_states), (f"dxs{k}", term.n_states)]
     arrays = {name for name, _ in slots} | {"q", "v", "phi"}
-    L = _Sections(arrays, W).L
+
+    def L(code: str, uses_lane: bool = False) -> str:
+        """Per-trajectory code -> its loop over the lanes (`lanes.lane_block`)."""
+        return lanes.lane_block(textwrap.dedent(code).strip("\n"), arrays, W, uses_lane=uses_lane)
 
     hook_defs: list[str] = []
     hook_globals: dict[str, tuple[object, str]] = {}

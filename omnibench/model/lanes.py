@@ -37,9 +37,8 @@ class _ToLane(ast.NodeTransformer):
         if isinstance(node.value, ast.Name) and node.value.id in self.arrays:
             if isinstance(node.slice, (ast.Slice, ast.Tuple)):
                 raise HookFormError(f"{self.where}: `{ast.unparse(node)}`: index lane arrays one element at a time")
-            scaled = ast.BinOp(ast.BinOp(node.slice, ast.Mult(), ast.Constant(self.width)), ast.Add(),
-                               ast.Name(self.lane, ast.Load()))
-            node.slice = scaled if self.width > 1 else ast.BinOp(node.slice, ast.Add(), ast.Name(self.lane, ast.Load()))
+            node.slice = ast.BinOp(ast.BinOp(node.slice, ast.Mult(), ast.Constant(self.width)), ast.Add(),
+                                   ast.Name(self.lane, ast.Load()))
         return node
 
 
