@@ -13,7 +13,8 @@ How it is made fast (issue 2; `benchmarks/simulate.py` measures it):
     rewritten into lane form from their own source (`omnibench.model.lanes`); so is each
     section of the derivative below. Lanes of a group share sub-steps, mode and the set of
     enabled terms (those decide branches); a short group is padded with copies of its first
-    lane, so a trajectory gives the same numbers alone or inside any batch;
+    lane. A trajectory's numbers do not depend on its batch up to rounding: the compiler may
+    fuse a multiply-add differently in another lane (~1e-14 relative, tested);
   - every hook is compiled with numba `inline="always"` and the derivative is written straight
     into the stage loop: no call, no reference count, nothing allocated per step;
   - groups with every effect off run a lean copy of the loop generated without the effects'
@@ -87,6 +88,8 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
     """Python source of the kernel module for this layout, `width` lanes per group."""
     C, rv, W = context, RV, width
     nt = len(lay.terms)
+    if nt > 62:
+        raise ValueError(f"{nt} registered terms: the kernel's lane grouping packs one bit per term into 62")
     nx = NX_FIXED + nt + lay.n_states
     # per-lane arrays (name, elements per lane): each a flat view of the scratch buffer
     slots: list[tuple[str, int]] = [
@@ -107,7 +110,8 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         return lanes.lane_block(textwrap.dedent(code).strip("\n"), arrays, W, uses_lane=uses_lane)
 
     hook_defs: list[str] = []
-    hook_globals: dict[str, tuple[object, str]] = {}
+    hook_imports: set[str] = set()
+    modules: dict[str, int] = {}  # hook module -> its number in the hooks' global names
     # per-term pieces, each tagged with whether it belongs to one of the paper's terms
     calls: dict[str, list[tuple[bool, str]]] = {h: [] for h in HOOKS}
     p_fill: list[str] = []
@@ -120,12 +124,10 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         p = f"p{k}"
         p_fill.append(f"for i in range({len(term.params)}):\n    {p}[i] = P[b, {p0} + i]")
         for hook, fn in term.hooks.items():
-            src, needed = lanes.lane_function(fn, alias_name(k, hook), W)
             home = getattr(fn, "py_func", fn).__module__
-            for name, obj in needed.items():
-                if name in hook_globals and hook_globals[name][0] is not obj:
-                    raise lanes.HookFormError(f"two hooks use the global name `{name}` for different things")
-                hook_globals[name] = (obj, home)
+            number = modules.setdefault(home, len(modules))
+            src, needed = lanes.lane_function(fn, alias_name(k, hook), W, prefix=f"m{number}_")
+            hook_imports.update(lanes.import_line(alias, obj, name, home) for alias, (obj, name) in needed.items())
             hook_defs.append('@njit(inline="always", error_model="numpy", fastmath={"contract"})\n' + src)
         xs = f"xs{k}" if ns else "xs_none"
         if ns:
@@ -356,8 +358,6 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         f'ctx[{C.CTX_V_NOMINAL}] = rv[{rv["V_batt"]}]',
         "psr[0] = X[2]", "cref[0] = math.cos(psr[0])", "sref[0] = math.sin(psr[0])",
     ]), uses_lane=True)
-    imports = sorted({lanes.import_line(name, obj, home) for name, (obj, home) in hook_globals.items()}
-                     - {"import math", "import numpy as np"})
     paper = ", ".join("1" if t.core else "0" for t in lay.terms)
     # the lean copy integrates only the state entries up to the last one the paper's terms
     # change (an effect's energy and states keep their initial values while it is off)
@@ -372,7 +372,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
             ("_group", "every term", False),
             ("_group_paper", "the paper's terms only (every effect is off in the group)", True)))
     return _TEMPLATE.format(
-        imports="\n".join(imports), nx=nx, nt=nt, W=W, mode=rv["mode"], ground=C.MODE_GROUND,
+        imports="\n".join(sorted(hook_imports)), nx=nx, nt=nt, W=W, mode=rv["mode"], ground=C.MODE_GROUND,
         naux=NAUX, naux_last=NAUX - 1, i_w=rv["I_w"], hooks=("\n" * 3).join(hook_defs), groups=groups,
         paper=paper)
 
@@ -404,14 +404,16 @@ def _groups(RV, EN, SUB):
     Returns (groups (G, W), number of real trajectories in each, whether only the paper's
     terms are on in it)."""
     B = RV.shape[0]
-    key = np.empty(B, dtype=np.int64)
+    run_key = np.empty(B, dtype=np.int64)  # sub-steps and mode
+    terms_key = np.empty(B, dtype=np.int64)  # one bit per enabled term (NT <= 62)
     for b in range(B):
-        kk = SUB[b] if SUB.shape[0] > 1 else SUB[0]
-        kk = kk * 2 + (0 if RV[b, MODE] == {ground} else 1)
+        run_key[b] = (SUB[b] if SUB.shape[0] > 1 else SUB[0]) * 2 + (0 if RV[b, MODE] == {ground} else 1)
+        kk = 0
         for i in range(NT):
             kk = kk * 2 + (1 if EN[b, i] != 0.0 else 0)
-        key[b] = kk
-    order = np.argsort(key, kind="mergesort")
+        terms_key[b] = kk
+    order = np.argsort(terms_key, kind="mergesort")
+    order = order[np.argsort(run_key[order], kind="mergesort")]  # stable: by run, then terms
     groups = np.empty((B, W), dtype=np.int64)
     counts = np.empty(B, dtype=np.int64)
     paper = np.empty(B, dtype=np.bool_)
@@ -419,7 +421,8 @@ def _groups(RV, EN, SUB):
     i = 0
     while i < B:
         n = 1
-        while n < W and i + n < B and key[order[i + n]] == key[order[i]]:
+        while (n < W and i + n < B and run_key[order[i + n]] == run_key[order[i]]
+               and terms_key[order[i + n]] == terms_key[order[i]]):
             n += 1
         for m in range(W):
             groups[G, m] = order[i + m] if m < n else order[i]
@@ -653,8 +656,8 @@ def _run_signature():
 
 def _compile(module) -> None:
     """Compile `run` for the simulator's argument types now (or load it from numba's cache),
-    with LLVM's SLP vectoriser on: numba leaves it off by default, and it is what turns the
-    hooks' 4-wheel loops into vector instructions (sqrt and division 4 at a time). The tests in
+    with LLVM's SLP vectoriser on (numba leaves it off by default): with the loop vectoriser it
+    turns the unrolled loops over the lanes into vector instructions. The tests in
     tests/model/test_kernel_numerics.py check the compiled kernel against a plain numpy model."""
     from numba.core import config
 

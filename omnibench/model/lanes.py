@@ -42,14 +42,10 @@ class _ToLane(ast.NodeTransformer):
         return node
 
 
-def _check_bare(tree: ast.AST, arrays: set[str], where: str, allow_calls: bool) -> None:
-    """Lane arrays may only appear subscripted (or, in kernel sections, as call arguments)."""
-    allowed: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name):
-            allowed.add(id(node.value))
-        if allow_calls and isinstance(node, ast.Call):
-            allowed.update(id(a) for a in node.args if isinstance(a, ast.Name))
+def _check_bare(tree: ast.AST, arrays: set[str], where: str) -> None:
+    """Lane arrays may only appear subscripted."""
+    allowed = {id(node.value) for node in ast.walk(tree)
+               if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name)}
     for node in ast.walk(tree):
         if isinstance(node, ast.Name) and node.id in arrays and id(node) not in allowed:
             raise HookFormError(f"{where}: array `{node.id}` used whole; index it one element at a time")
@@ -61,7 +57,7 @@ def lane_block(code: str, arrays: Iterable[str], width: int, where: str = "kerne
     `uses_lane`: the code reads the lane number k itself (e.g. to pick its trajectory)."""
     arrays = set(arrays)
     tree = ast.parse(textwrap.dedent(code))
-    _check_bare(tree, arrays, where, allow_calls=False)
+    _check_bare(tree, arrays, where)
     for node in ast.walk(tree):
         if not uses_lane and isinstance(node, ast.Name) and node.id == LANE:
             raise HookFormError(f"{where}: `{LANE}` is the lane variable; name the loop otherwise")
@@ -70,13 +66,18 @@ def lane_block(code: str, arrays: Iterable[str], width: int, where: str = "kerne
     return f"for {LANE} in range({width}):\n" + textwrap.indent(body, "    ")
 
 
-def lane_function(fn: Callable, name: str, width: int) -> tuple[str, dict[str, object]]:
+def lane_function(fn: Callable, name: str, width: int, prefix: str) -> tuple[str, dict[str, tuple[object, str]]]:
     """Source of `name(<fn's arguments>, k)`: fn applied to lane k of lane arrays of width W.
 
-    Every argument of a hook is an array (terms.py). Returns the source and the globals it
-    reads (name -> object from the hook's module), which the generated module must import."""
+    Every argument of a hook is an array (terms.py). Each global the hook reads is renamed
+    prefix + its name, so it can clash neither with the kernel's own names nor with another
+    module's. Returns the source and {renamed global: (object, name in the hook's module)},
+    which the generated module must import."""
     py = getattr(fn, "py_func", fn)
     where = f"hook {py.__module__}.{py.__name__}"
+    if py.__code__.co_freevars:
+        raise HookFormError(f"{where}: reads variables of an enclosing function ({', '.join(py.__code__.co_freevars)}); "
+                            "hooks are module-level functions")
     try:
         tree = ast.parse(textwrap.dedent(inspect.getsource(py)))
     except (OSError, TypeError) as exc:  # pragma: no cover - hooks are always module functions
@@ -84,7 +85,14 @@ def lane_function(fn: Callable, name: str, width: int) -> tuple[str, dict[str, o
     func = tree.body[0]
     if not isinstance(func, ast.FunctionDef):
         raise HookFormError(f"{where}: not a plain function")
-    arrays = {a.arg for a in func.args.args}
+    for deco in func.decorator_list:
+        target = deco.func if isinstance(deco, ast.Call) else deco
+        if not (isinstance(target, ast.Name) and target.id in ("njit", "jit")):
+            raise HookFormError(f"{where}: decorated with `{ast.unparse(deco)}`; hooks take numba's @njit only")
+    args = func.args
+    if args.posonlyargs or args.kwonlyargs or args.vararg or args.kwarg or args.defaults:
+        raise HookFormError(f"{where}: arguments must be plain positional ones, as in terms.py")
+    arrays = {a.arg for a in args.args}
     if LANE in arrays:
         raise HookFormError(f"{where}: an argument is named `{LANE}`, the lane variable")
     for node in ast.walk(func):
@@ -92,32 +100,31 @@ def lane_function(fn: Callable, name: str, width: int) -> tuple[str, dict[str, o
             raise HookFormError(f"{where}: hooks return nothing (they write into their arrays)")
         if isinstance(node, ast.Name) and node.id == LANE:
             raise HookFormError(f"{where}: uses the name `{LANE}`, the lane variable")
-    _check_bare(func, arrays, where, allow_calls=False)
+        if node is not func and isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            raise HookFormError(f"{where}: defines a function or class inside; keep helpers at module level")
+    _check_bare(func, arrays, where)
     func = _ToLane(arrays, width, LANE, where).visit(func)
     func.decorator_list = []
     func.name = name
-    func.args.args.append(ast.arg(LANE))
+    args.args.append(ast.arg(LANE))
     func.returns = None
-    ast.fix_missing_locations(func)
-    local = {a.arg for a in func.args.args}
+    local = {a.arg for a in args.args}
     for node in ast.walk(func):
         if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
             local.add(node.id)
-    needed: dict[str, object] = {}
+    needed: dict[str, tuple[object, str]] = {}
     for node in ast.walk(func):
         if isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load) and node.id not in local:
             if node.id in py.__globals__:
-                needed[node.id] = py.__globals__[node.id]
+                needed[prefix + node.id] = (py.__globals__[node.id], node.id)
+                node.id = prefix + node.id
             elif not hasattr(builtins, node.id):
                 raise HookFormError(f"{where}: unknown name `{node.id}`")
-    return ast.unparse(func), needed
+    return ast.unparse(ast.fix_missing_locations(func)), needed
 
 
-def import_line(name: str, obj: object, module: str) -> str:
-    """The import that binds `name` to `obj` in the generated module."""
+def import_line(alias: str, obj: object, name: str, module: str) -> str:
+    """The import that binds `alias` to `obj`, which the hook's `module` knows as `name`."""
     if isinstance(obj, types.ModuleType):
-        return f"import {obj.__name__}" if obj.__name__ == name else f"import {obj.__name__} as {name}"
-    home = getattr(getattr(obj, "py_func", obj), "__module__", None)
-    if isinstance(obj, (int, float, str, bool)) or home is None:
-        return f"from {module} import {name}"
-    return f"from {home} import {getattr(getattr(obj, 'py_func', obj), '__name__', name)} as {name}"
+        return f"import {obj.__name__} as {alias}"
+    return f"from {module} import {name} as {alias}"

@@ -36,7 +36,8 @@ METHODS = {"heun": kernel.METHOD_HEUN, "rk4": kernel.METHOD_RK4}
 DEFAULT_METHOD = "rk4"
 # Largest h * lambda allowed per method, with a margin below the real-axis stability limit of
 # each explicit scheme (Heun / explicit RK2: 2.0; classical RK4: 2.785). lambda is the largest
-# decay rate of the model's speeds at rest, every enabled term counted (`stiffness.decay_rates`).
+# decay rate of the speeds at rest, differentiated from the model with every enabled term
+# (`stiffness.decay_rates`).
 STABILITY_LIMITS = {"heun": 1.8, "rk4": 2.5}
 STABILITY_LIMIT = STABILITY_LIMITS[DEFAULT_METHOD]
 
@@ -235,7 +236,7 @@ def simulate_batch(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     # sub-steps per trajectory: a stiff parameter set does not slow the others down, and a
-    # trajectory gives the same numbers alone or inside any batch
+    # trajectory's numbers do not depend on the batch it is in (to rounding)
     stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
     X0, RV, P, EN, Rm, Sm, Minv, M = (stack(n) for n in ("x0", "rv", "P", "EN", "Rm", "Sm", "Minv", "M"))
     if substeps:

@@ -25,8 +25,8 @@ SIZES = {
 
 
 def _lane_callable(fn, width: int):
-    src, needed = lane_function(fn, "lane_hook", width)
-    namespace = dict(needed)
+    src, needed = lane_function(fn, "lane_hook", width, prefix="g_")
+    namespace = {alias: obj for alias, (obj, _) in needed.items()}
     exec(src, namespace)  # plain Python: the same operations the kernel compiles
     return namespace["lane_hook"]
 
@@ -58,32 +58,25 @@ def _random_arguments(term, hook, rng):
 
 
 @pytest.mark.parametrize(("term", "hook", "fn"), list(_hooks()))
-def test_lane_form_equals_the_hook_on_every_lane(term, hook, fn):
+def test_lane_form_equals_the_hook_on_every_lane_and_touches_no_other(term, hook, fn):
     rng = np.random.default_rng(7)
     per_lane = _random_arguments(term, hook, rng)
     # structure of arrays: element i of lane k at i * W + k
     soa = [np.stack([per_lane[k][a] for k in range(W)], axis=1).ravel() for a in range(len(per_lane[0]))]
     lane_hook = _lane_callable(fn, W)
-    for k in range(W):
-        lane_hook(*soa, k)
     py = getattr(fn, "py_func", fn)
     for k in range(W):
-        py(*per_lane[k])
-        for a, arr in enumerate(per_lane[k]):
-            got = soa[a].reshape(-1, W)[:, k] if arr.size else arr
-            np.testing.assert_array_equal(got, arr, err_msg=f"{term.name}.{hook}: argument {a}, lane {k}")
-
-
-def test_lane_form_changes_only_its_own_lane():
-    term = layout().terms[layout().index("transmission_friction")]
-    fn = term.hooks["wheel_torque"]
-    rng = np.random.default_rng(3)
-    soa = [rng.uniform(0.1, 1.0, n * W) for n in (4, 4, 4, 4, 4, 0, C.CTX_SIZE, 3)]
-    before = [a.copy() for a in soa]
-    _lane_callable(fn, W)(*soa, 2)
-    out = soa[0].reshape(4, W)
-    assert not np.array_equal(out[:, 2], before[0].reshape(4, W)[:, 2])
-    np.testing.assert_array_equal(np.delete(out, 2, axis=1), np.delete(before[0].reshape(4, W), 2, axis=1))
+        mine = [a.copy() for a in soa]  # a fresh group per lane: a write to another lane shows
+        lane_hook(*mine, k)
+        alone = [a.copy() for a in per_lane[k]]
+        py(*alone)
+        for a, (got, before, want) in enumerate(zip(mine, soa, alone)):
+            if not got.size:
+                continue
+            got, before = got.reshape(-1, W), before.reshape(-1, W)
+            np.testing.assert_array_equal(got[:, k], want, err_msg=f"{term.name}.{hook}: argument {a}, lane {k}")
+            np.testing.assert_array_equal(np.delete(got, k, axis=1), np.delete(before, k, axis=1),
+                                          err_msg=f"{term.name}.{hook}: argument {a}: lane {k} wrote another lane")
 
 
 def _slices(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
@@ -105,16 +98,64 @@ def _uses_lane_name(u, ctx, p):
         u[k] = 0.0
 
 
+def _keyword_only(u, ctx, *, p):
+    u[0] = p[0]
+
+
+def _nested_helper(u, ctx, p):
+    def twice(x):
+        return 2.0 * x
+    u[0] = twice(p[0])
+
+
+def _closure():
+    gain = 2.0
+
+    def hook(u, ctx, p):
+        u[0] = gain * p[0]
+    return hook
+
+
+def _plain_decorator(f):
+    return f
+
+
+@_plain_decorator
+def _decorated(u, ctx, p):
+    u[0] = p[0]
+
+
 @pytest.mark.parametrize(("fn", "message"), [
     (_slices, "one element at a time"),
     (_passes_array_on, "used whole"),
     (_returns_value, "return nothing"),
     (_uses_lane_name, "lane variable"),
+    (_keyword_only, "plain positional"),
+    (_nested_helper, "inside"),
+    (_closure(), "enclosing function"),
+    (_decorated, "@njit only"),
 ])
 def test_hooks_the_rewrite_cannot_handle_are_refused_by_name(fn, message):
     with pytest.raises(HookFormError, match=message) as err:
-        lane_function(fn, "x", W)
+        lane_function(fn, "x", W, prefix="g_")
     assert fn.__name__ in str(err.value)
+
+
+W_GLOBAL = 2.0  # a hook global; the test gives the generated module a clashing name of its own
+
+
+def _reads_a_module_global(u, ctx, p):
+    u[0] = W_GLOBAL * p[0]
+
+
+def test_hook_globals_are_renamed_so_they_cannot_clash_with_the_kernels_names():
+    src, needed = lane_function(_reads_a_module_global, "x", W, prefix="m7_")
+    assert needed == {"m7_W_GLOBAL": (2.0, "W_GLOBAL")}
+    namespace = {"m7_W_GLOBAL": 2.0, "W_GLOBAL": -1.0}  # the module's own W_GLOBAL must not be read
+    exec(src, namespace)
+    u, p = np.zeros(4 * W), np.full(W, 3.0)
+    namespace["x"](u, np.zeros(C.CTX_SIZE * W), p, 1)
+    assert u[1] == 6.0
 
 
 def test_kernel_section_is_rewritten_into_a_loop_over_the_lanes():
