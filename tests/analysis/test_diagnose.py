@@ -12,7 +12,7 @@ from __future__ import annotations
 import pytest
 
 from omnibench.analysis.diagnosis import diagnose
-from omnibench.analysis.diagnosis.campaign import CLEAN, REVEALING, campaign
+from omnibench.analysis.diagnosis.campaign import CLEAN, REVEALING, CampaignSpec, campaign
 from omnibench.effects import EFFECTS
 
 TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral",
@@ -84,3 +84,17 @@ def test_look_alikes_are_reported_as_ambiguous_with_the_separating_experiment(om
     assert pair == {"floor_slope", "asymmetric_coulomb"}
     assert "sweep" in d.ambiguous[0]["experiment"]
     assert "Cannot tell apart" in d.text()
+
+
+def test_not_testable_only_when_the_data_cannot_show_the_effect(omnibot):
+    """On a clean upside-down sweep (both directions, two wheel sets), a floor slope changes no
+    prediction (it acts only on the ground): 'not testable'. Direction-asymmetric friction
+    does change them (forward slower, backward faster): it is tested, and rejected on its LR,
+    not called untestable."""
+    d = diagnose(omnibot, campaign(omnibot, CampaignSpec(("sweep",)), {}, seed=5),
+                 candidates=["floor_slope", "asymmetric_coulomb", "stribeck_friction"])
+    reasons = {c.name: c.reason for c in d.rejected}
+    assert not d.selected
+    assert reasons["floor_slope"].startswith("not testable with these data (it changes no prediction")
+    assert reasons["asymmetric_coulomb"].startswith("first-order test LR"), reasons["asymmetric_coulomb"]
+    assert reasons["stribeck_friction"].startswith("first-order test LR"), reasons["stribeck_friction"]

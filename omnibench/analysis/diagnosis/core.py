@@ -42,6 +42,7 @@ MAX_FITS = 6  # refits per round when the top_k all fail
 POLISH_NFEV = 60  # evaluations allowed when fitting the declared and each accepted model
 ZERO_SE = 2.0  # a candidate whose every fitted parameter is within this many SE of 0 is absent
 RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
+CONFOUNDED = 1e-6  # share of a candidate's sensitivity left after the fitted parameters' directions
 
 
 @dataclass
@@ -300,8 +301,12 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                 c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, far below the {thr[e.name]:.1f} needed"
                             if scr.approx_lr[e.name] < SCREEN_FRACTION * thr[e.name] else
                             f"first-order test LR ≈ {c.approx_lr:.1f}, far below the leading candidates'")
-                if scr.approx_lr[e.name] <= 1e-12:
-                    c.reason = f"not testable with these data (it does not change any prediction; shows in {', '.join(e.procedures)})"
+                if scr.distinct[e.name] == 0.0:
+                    c.reason = (f"not testable with these data (it changes no prediction of them; "
+                                f"shows in {', '.join(e.procedures)})")
+                elif scr.distinct[e.name] < CONFOUNDED:
+                    c.reason = ("not testable with these data (what it would change, a change of the "
+                                f"fitted parameters changes alike; shows in {', '.join(e.procedures)})")
             tried.append(c)
         if not passing:
             rejected += tried

@@ -248,6 +248,10 @@ class Screen:
 
     approx_lr: dict[str, float]
     estimate: dict[str, dict[str, float]]
+    #: how much of the candidate's sensitivity the current model's own parameters cannot mimic
+    #: (norm after / before projecting their directions out): 0 when it changes no prediction
+    #: in these data, ~0 when the change equals a change of the fitted parameters
+    distinct: dict[str, float]
 
 
 def secant_steps(effect: Effect) -> dict[str, float]:
@@ -285,10 +289,13 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
         proj = lambda v: v  # noqa: E731
     r_perp = proj(r)
     groups = problem.group[used]
-    out, est = {}, {}
+    out, est, distinct = {}, {}, {}
     for eff in candidates:
         idx = [k for k, c in enumerate(cols) if c[0] == eff.name]
-        A = np.stack([proj(((F[k] - current.f) / cols[k][2] * w)[used]) for k in idx], axis=1)
+        raw = np.stack([((F[k] - current.f) / cols[k][2] * w)[used] for k in idx], axis=1)
+        A = np.stack([proj(raw[:, i]) for i in range(raw.shape[1])], axis=1)
+        size = float(np.linalg.norm(raw))
+        distinct[eff.name] = float(np.linalg.norm(A)) / size if size > 0 else 0.0
         coef, *_ = np.linalg.lstsq(A, r_perp, rcond=None)
         new = r_perp - A @ coef
         # change of the profile deviance, group by group (a small group that the candidate
@@ -301,7 +308,7 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
                 lr += (n - 1) * math.log(max(float(r[m] @ r[m]), 1e-300) / max(float(new[m] @ new[m]), 1e-12 * n))
         out[eff.name] = max(lr, 0.0) if np.any(np.abs(A) > 0) else 0.0
         est[eff.name] = {cols[k][1]: float(c) for k, c in zip(idx, coef)}
-    return Screen(out, est)
+    return Screen(out, est, distinct)
 
 
 def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
