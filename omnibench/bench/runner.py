@@ -190,7 +190,7 @@ class Runner:
             self.writer.event("fault", t=s.t, step=step.index, flags=int(s.faults), names=fault_names(int(s.faults)))
             self._stop()
             raise BoardError(f"board reported fault {fault_names(int(s.faults))} during step {step.index} "
-                             f"({step.label}); motors stopped")
+                             f"({step.label})")  # the session then confirms the motors stopped
         if (not self.self_heartbeat and self._duties != (0.0, 0.0, 0.0, 0.0)
                 and s.t - self._last_cmd_t >= self.keep_every):
             self._command(self._duties, s.t)  # keep the watchdog fed with the same duties

@@ -31,6 +31,7 @@ from omnibench.sim.world import World
 
 DUTY_FULL_SCALE = 32767
 MODES = ("ground", "upside_down")
+PROTECTION_PERIOD_US = 1000  # the board samples motor currents and battery voltage at 1 kHz
 
 
 @dataclass
@@ -74,6 +75,7 @@ class SimBoard:
         self.disconnected = False
         self.boots = 0
         self._reset_done = False
+        self._driver_fault_done = False
         b = self.spec.board
         self._max_rate = int(b.get("max_telemetry_hz", 1000))
         self._default_watchdog_us = int(round(float(b.get("default_watchdog_s", 0.5)) * 1e6))
@@ -123,6 +125,8 @@ class SimBoard:
             ev.append(int(round(f.reset_at * 1e6)))
         if f.disconnect_at is not None and not self.disconnected:
             ev.append(int(round(f.disconnect_at * 1e6)))
+        if f.driver_fault_at is not None and not self._driver_fault_done:
+            ev.append(int(round(f.driver_fault_at * 1e6)))
         return ev
 
     def next_output_us(self) -> int | None:
@@ -155,13 +159,47 @@ class SimBoard:
             self._physics_to(max(clock_us, self.clock_us))
 
     def _physics_to(self, clock_us: int) -> None:
-        self.plant.advance_to(clock_us * 1e-6, self.duties)
-        self.clock_us = clock_us
+        f = self.world.faults
+        if f.overcurrent_limit is None and f.undervoltage_limit is None:
+            self.plant.advance_to(clock_us * 1e-6, self.duties)
+            self.clock_us = clock_us
+            return
+        # the board's protection samples current and voltage every PROTECTION_PERIOD_US, so a
+        # start-up current spike between two telemetry frames trips it as on the real board
+        while self.clock_us < clock_us:
+            t = min(clock_us, (self.clock_us // PROTECTION_PERIOD_US + 1) * PROTECTION_PERIOD_US)
+            self.plant.advance_to(t * 1e-6, self.duties)
+            self.clock_us = t
+            self._check_limits()
+        self.clock_us = max(self.clock_us, clock_us)
+
+    def _check_limits(self) -> None:
+        """The board's protection (world faults.overcurrent_limit / undervoltage_limit; off by
+        default). A tripped limit latches its fault and stops the motors."""
+        f = self.world.faults
+        s = self.plant.state
+        if f.overcurrent_limit is not None and np.max(np.abs(s.motor_current)) > f.overcurrent_limit:
+            self._latch("OVERCURRENT")
+        if f.undervoltage_limit is not None and s.V_batt < f.undervoltage_limit:
+            self._latch("UNDERVOLTAGE")
+
+    def _latch(self, fault: str) -> None:
+        """Latch `fault`, stop the motors and tell the host (EVENT FAULT, arg = the new flag)."""
+        bit = 1 << self.spec.flags["faults"][fault]
+        if self.faults & bit:
+            return
+        self.faults |= bit
+        self.duties = np.zeros(4)
+        self.last_command = fault
+        self._send("EVENT", {"code": self._enum("event", "FAULT"), "arg": bit, "time": self._time_raw()})
 
     def _handle_events(self, t: int) -> None:
         f = self.world.faults
         if f.disconnect_at is not None and not self.disconnected and t >= int(round(f.disconnect_at * 1e6)):
             self.disconnected = True
+        if f.driver_fault_at is not None and not self._driver_fault_done and t >= int(round(f.driver_fault_at * 1e6)):
+            self._driver_fault_done = True
+            self._latch("DRIVER")
         if f.reset_at is not None and not self._reset_done and t >= int(round(f.reset_at * 1e6)):
             self._reset_done = True
             self._boot()

@@ -45,6 +45,9 @@ class FaultConfig:
     reset_at: float | None = None       #: board time at which the board reboots (new boot id)
     wrong_baud: bool = False      #: every byte arrives garbled, as if the baud rate were wrong
     protocol_version: int | None = None  #: report this protocol version in HELLO (mismatch tests)
+    overcurrent_limit: float | None = None   #: A: a motor current above this latches OVERCURRENT
+    undervoltage_limit: float | None = None  #: V: battery voltage below this latches UNDERVOLTAGE
+    driver_fault_at: float | None = None     #: board time at which the motor driver reports a fault
 
 
 @dataclass(frozen=True)
@@ -137,15 +140,22 @@ def _faults(base: FaultConfig, d: Mapping[str, Any], where: str) -> FaultConfig:
             if v not in ("both", "to_host", "to_board"):
                 raise UserError(f"{where}: direction must be both, to_host or to_board, not {v!r}")
             changes[k] = v
-        elif k in ("disconnect_at", "reset_at"):
+        elif k in ("disconnect_at", "reset_at", "driver_fault_at"):
             x = _float(v, f"{where} {k}")
             if x < 0:
                 raise UserError(f"{where}: {k} is a board time in s and must not be negative")
+            changes[k] = x
+        elif k in ("overcurrent_limit", "undervoltage_limit"):
+            x = _float(v, f"{where} {k}")
+            if x <= 0:
+                raise UserError(f"{where}: {k} must be positive ({'A' if k == 'overcurrent_limit' else 'V'})")
             changes[k] = x
         elif k == "wrong_baud":
             changes[k] = _bool(v, f"{where} {k}")
         elif k == "protocol_version":
             changes[k] = int(_float(v, f"{where} {k}"))
+        else:  # pragma: no cover - a FaultConfig field without its parser
+            raise AssertionError(f"fault setting {k!r} has no parser")
     return replace(base, **changes)
 
 

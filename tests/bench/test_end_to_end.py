@@ -269,3 +269,26 @@ def test_killed_process_leaves_a_readable_incomplete_run_that_resumes(tmp_path):
     assert run.status == "complete" and list(run.steps["step"]) == list(range(8))
     assert len(run.samples) > n
     assert [s["previous_status"] for s in run.metadata["segments"][1:]] == ["running"]
+
+
+def test_board_fault_mid_sweep_stops_keeps_the_data_and_exits_3(capsys, tmp_path):
+    """The simulated board's overcurrent protection (4 A) trips when the sweep steps the duty
+    up from rest: the run stops with the fault recorded, keeps every sample taken, reports
+    one line naming the fault and the step, and exits 3; the board ends with motors off."""
+    from omnibench.sim import registry
+
+    name = f"oc-{tmp_path.name}"
+    code, _, err = omnibench(capsys, "sweep", "--port", f"sim://?name={name}&overcurrent_limit=4",
+                             "--procedure", str(PROC / FILES["sweep"]), "--out", str(tmp_path))
+    assert code == 3
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("omnibench: error: board reported fault OVERCURRENT during step ")
+    (run_dir,) = list(tmp_path.iterdir())
+    run = read_run(run_dir)
+    assert run.status == "failed" and "OVERCURRENT" in run.metadata["reason"]
+    assert len(run.samples) > 10 and run.samples["faults"].iloc[-1] != 0
+    faults = run.events[run.events["kind"] == "fault"]
+    assert len(faults) == 1 and faults["names"].iloc[0] == "OVERCURRENT"
+    st = registry.get(name).status()
+    assert st["duties"] == [0.0, 0.0, 0.0, 0.0] and st["faults"] == ["OVERCURRENT"]
+    assert "motors stopped" in err and "NOT confirmed" not in err

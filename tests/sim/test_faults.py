@@ -180,3 +180,60 @@ def test_board_with_another_layout_is_recognised_as_another_version(tmp_path) ->
     v9.write_text(text)
     with pytest.raises(BoardError, match=r"v9.*this tool speaks v1.*motors not driven"):
         Board.open(f"sim://?protocol={v9}", timeout=1.0)
+
+
+def _fault_samples(b: Board, seconds: float):
+    got = b.wait(seconds)
+    return got, [s for s in got if s.faults]
+
+
+def test_overcurrent_latches_stops_the_motors_and_refuses_duties_until_cleared() -> None:
+    """Starting from rest at duty 0.8 draws ~10 A per motor (0.8 * 24 V / 1.84 ohm): above a
+    4 A limit the board must latch OVERCURRENT, stop, report it, and refuse duties until
+    CLEAR_FAULTS; below the limit nothing trips."""
+    name = _name()
+    with Board.open(f"sim://?name={name}&overcurrent_limit=4") as b:
+        b.configure(telemetry_hz=200)
+        b.set_duties([0.1] * 4)  # ~1.3 A at start: under the limit
+        _, faulted = _fault_samples(b, 0.3)
+        assert not faulted
+        b.set_duties([0.8] * 4)
+        got, faulted = _fault_samples(b, 0.3)
+        assert faulted and b.fault_names(faulted[0].faults) == ["OVERCURRENT"]
+        assert all(s.duty == (0.0,) * 4 for s in got if s.t > faulted[0].t)
+        assert any(e[1] == "FAULT" for e in b.stats.events)
+        with pytest.raises(BoardError, match="OVERCURRENT latched"):
+            b.set_duties([0.1] * 4)
+        b.clear_faults()
+        b.set_duties([0.1] * 4)
+        got, faulted = _fault_samples(b, 0.2)
+        assert not faulted and got[-1].duty == (pytest.approx(0.1, abs=1e-4),) * 4
+        b.stop()
+
+
+def test_battery_sagging_under_load_latches_undervoltage() -> None:
+    """A pack with 0.2 ohm internal resistance sags ~6 V under a 0.8 start (~30 A): below a
+    22 V limit the board latches UNDERVOLTAGE; at rest (24 V) it does not."""
+    name = _name()
+    url = f"sim://?name={name}&undervoltage_limit=22&effects.battery_resistance.R_b=0.2"
+    with Board.open(url) as b:
+        b.configure(telemetry_hz=200)
+        got, faulted = _fault_samples(b, 0.2)
+        assert not faulted and min(s.battery_voltage for s in got) > 23.5
+        b.set_duties([0.8] * 4)
+        got, faulted = _fault_samples(b, 0.3)
+        assert faulted and b.fault_names(faulted[0].faults) == ["UNDERVOLTAGE"]
+        assert registry.get(name).status()["faults"] == ["UNDERVOLTAGE"]
+        b.stop()
+
+
+def test_scheduled_driver_fault_stops_the_motors_at_its_time() -> None:
+    name = _name()
+    with Board.open(f"sim://?name={name}&driver_fault_at=0.4") as b:
+        b.configure(telemetry_hz=200)
+        b.set_duties([0.3] * 4)
+        got, faulted = _fault_samples(b, 0.8)
+        assert faulted and b.fault_names(faulted[0].faults) == ["DRIVER"]
+        assert 0.4 - 1e-9 <= faulted[0].t <= 0.4 + 0.006
+        assert all(s.duty == (0.0,) * 4 for s in faulted)
+        assert all(not s.faults for s in got if s.t < 0.4 - 1e-9)
