@@ -43,12 +43,29 @@ def procedure_files(folder: Path | None) -> dict[str, Path]:
     return out
 
 
+def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
+    """Run directories in runs_dir by procedure, oldest first, each with its status."""
+    found: dict[str, list[tuple[Path, str]]] = {}
+    for run_json in sorted(runs_dir.glob("*/run.json")) if runs_dir.is_dir() else []:
+        try:
+            meta = json.loads(run_json.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            raise UserError(f"{run_json}: unreadable run.json; move that run out of {runs_dir}") from None
+        found.setdefault(str(meta.get("procedure")), []).append((run_json.parent, str(meta.get("status"))))
+    return found
+
+
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
                  echo: Callable[[str], None] = print, progress: bool = False,
-                 ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS) -> dict[str, Any]:
-    """Run the four procedures on `port`, then the analysis `stages`; write out/report.md."""
+                 ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
+                 resume: bool = False) -> dict[str, Any]:
+    """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
+
+    resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
+    an interrupted (or failed) run is resumed, a missing one is run. Without it, `out` must not
+    hold runs yet (the analysis reads every run there, so two campaigns must not mix)."""
     from omnibench.bench.procedure import load_plan
-    from omnibench.bench.session import load_robot_file, run_command
+    from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
 
     out = Path(out)
     files = procedure_files(procedures_dir)
@@ -58,16 +75,30 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         load_plan(f, robot, expect=p)
     if not port:
         raise UserError("no --port given (sim:// for the simulated robot)")
-    out.mkdir(parents=True, exist_ok=True)
     runs_dir = out / "runs"
+    earlier = _runs_of(runs_dir)
+    if earlier and not resume:
+        raise UserError(f"{runs_dir} already holds runs of a campaign: continue it with --resume, "
+                        "or give another --out")
+    for p in files:
+        if len(earlier.get(p, [])) > 1:
+            raise UserError(f"{runs_dir} holds {len(earlier[p])} {p} runs; keep one, so the campaign "
+                            "knows which to continue")
+    out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     results: dict[str, Any] = {"port": port, "out": str(out), "tool_version": __version__,
                                "robot_file": str(robot_file) if robot_file else "default", "procedures": {},
                                "analysis": {}}
     for p, f in files.items():
-        echo(f"== {COMMAND_OF[p]}: {f}")
+        (prior, status), = earlier.get(p, [(None, None)])
+        if status == "complete":
+            echo(f"== {COMMAND_OF[p]}: kept (complete) {prior}")
+            results["procedures"][p] = completed_run_summary(p, prior, echo)
+            continue
+        echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
-                          progress=progress, ammeter=ammeter if p == "energy_trajectories" else None)
+                          progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
+                          resume=prior)
         results["procedures"][p] = res
     results["analysis"] = run_analysis(runs_dir, out, robot_file, echo, stages)
     plots = make_plots(results, out, robot)

@@ -287,13 +287,18 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
                  f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
                                                    if status == "aborted" else ""), err=True)
+    return completed_run_summary(procedure, writer.path, echo)
+
+
+def completed_run_summary(procedure: str, path: str | Path, echo: Callable[[str], None] = print) -> dict[str, Any]:
+    """The JSON-able summary of a complete run of `procedure`, read back from its files."""
     from omnibench.runs import read_run
 
-    run = read_run(writer.path)
+    run = read_run(path)
     recs = run.steps.to_dict("records")
     res = summarise(procedure, recs)
     for line in summary_lines(procedure, res, len(recs)):
         echo(line)
-    echo(f"run complete: {writer.path} ({len(run.steps)} steps, {len(run.samples)} samples)")
-    return {"run": str(writer.path), "status": "complete", "procedure": procedure,
+    echo(f"run complete: {path} ({len(run.steps)} steps, {len(run.samples)} samples)")
+    return {"run": str(path), "status": "complete", "procedure": procedure,
             "steps": int(len(run.steps)), "samples": int(len(run.samples)), **res}

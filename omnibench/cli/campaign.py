@@ -21,9 +21,11 @@ import click
               help="SCPI ammeter on its own serial URL for the energy runs (default: the board's sensor).")
 @click.option("--analysis", "analysis", default="fit,validate-energy,diagnose", show_default=True,
               metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
+@click.option("--resume", is_flag=True,
+              help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, as_json: bool) -> None:
+            ammeter: str | None, analysis: str, resume: bool, as_json: bool) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
@@ -36,7 +38,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
 
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                        progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
-                       stages=parse_stages(analysis))
+                       stages=parse_stages(analysis), resume=resume)
     if as_json:
         from omnibench.runs.store import json_ready
 

@@ -58,3 +58,45 @@ def test_campaign_rejects_unknown_stage(capsys, tmp_path):
         assert exc.code == 2
     assert "unknown stage 'fortune'" in capsys.readouterr().err
     assert not (tmp_path / "c").exists()
+
+
+def _campaign(capsys, out, port, *extra):
+    code = 0
+    try:
+        main(["campaign", "--port", port, "--out", str(out), "--procedures", str(HERE / "procedures" / "campaign"),
+              "--analysis", "none", *extra])
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    _, err = capsys.readouterr()
+    return code, err
+
+
+def test_interrupted_campaign_resumes_without_redoing_complete_runs_or_mixing_campaigns(capsys, tmp_path):
+    """A motor-driver fault 10 s into each procedure's board time stops the campaign in the lateral
+    runs (12 s; the sweep and forward runs end before 10 s). Running the campaign again into the
+    same folder is refused (the analysis would mix two campaigns); --resume keeps the two complete
+    runs untouched, resumes the lateral run where it stopped and runs the energy trajectories."""
+    out = tmp_path / "c"
+    code, err = _campaign(capsys, out, "sim://?seed=8&driver_fault_at=10")
+    assert code == 3 and "DRIVER" in err.strip().splitlines()[-1]
+    runs = {read_run(d).procedure: d for d in (out / "runs").iterdir()}
+    assert set(runs) == {"upside_down_sweep", "forward_runs", "lateral_runs"}
+    assert read_run(runs["lateral_runs"]).status == "failed"
+    kept = {p: (runs[p] / "samples.csv").read_bytes() for p in ("upside_down_sweep", "forward_runs")}
+    lateral_steps = len(read_run(runs["lateral_runs"]).steps)
+
+    code, err = _campaign(capsys, out, "sim://?seed=8")
+    assert code == 2 and "already holds runs" in err and len(err.strip().splitlines()) == 1
+    assert len(list((out / "runs").iterdir())) == 3
+
+    code, err = _campaign(capsys, out, "sim://?seed=8", "--resume")
+    assert code == 0, err
+    after = {read_run(d).procedure: d for d in (out / "runs").iterdir()}
+    assert set(after) == set(runs) | {"energy_trajectories"} and len(after) == 4
+    for p, data in kept.items():
+        assert after[p] == runs[p] and (runs[p] / "samples.csv").read_bytes() == data
+    lateral = read_run(runs["lateral_runs"])
+    assert lateral.status == "complete" and len(lateral.metadata["segments"]) == 2
+    assert 0 < lateral_steps < len(lateral.steps) == lateral.metadata["steps_planned"]
+    assert list(lateral.steps["step"]) == list(range(len(lateral.steps)))
+    assert (out / "report.md").is_file()
