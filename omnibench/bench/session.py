@@ -142,11 +142,17 @@ def run_command(
     measurement_noise: float | None = None,
     timeout: float = 2.0,
     ammeter: str | None = None,
+    operator: str = "auto",
+    without_current: bool = False,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
     Raises UserError for bad input before any motor moves; KeyboardInterrupt propagates after
     the motors are stopped and the run is marked aborted.
+
+    operator: "auto" (the simulated operator on a simulator, the answers file, else the person at
+    the keyboard), "person" (always the keyboard; on a simulator the world follows the answers)
+    or "simulated". without_current: let `energy` drive without any battery current source.
     """
     from omnibench.bench.operator import AnswersOperator
 
@@ -170,6 +176,8 @@ def run_command(
         robot, robot_text, robot_name = load_robot_file(robot_file)
         pfile = Path(procedure_file) if procedure_file else default_procedure_path(procedure)
         plan = load_plan(pfile, robot, expect=procedure)
+    if operator not in OPERATORS:
+        raise UserError(f"--operator {operator!r}: choose {', '.join(OPERATORS)}")
     answer_op = AnswersOperator(answers) if answers else None
     if answer_op is not None:
         answer_op.check(plan.steps)
@@ -187,25 +195,36 @@ def run_command(
     with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
-                             measurement_noise=measurement_noise)
+                             measurement_noise=measurement_noise, who=operator,
+                             without_current=without_current)
 
 
-def _choose_operator(board: Any, plan: Plan, answer_op: Any, measurement_noise: float | None) -> Any:
+OPERATORS = ("auto", "person", "simulated")
+
+
+def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measurement_noise: float | None,
+                     who: str = "auto") -> Any:
     from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
 
-    if getattr(board, "is_simulator", False):
+    sim = getattr(board, "is_simulator", False)
+    if who == "person":
+        return ConsoleOperator(robot, mirror=board if sim else None)
+    if who == "simulated" and not sim:
+        raise UserError("--operator simulated needs a simulated board (sim:// or omnibench sim serve)")
+    if sim:
         op = plan.settings.get("operator", {})
         noise = op.get("measurement_noise", 0.002) if measurement_noise is None else measurement_noise
         return SimulatedOperator(board, noise=noise, seed=op.get("seed", 1), measurer=answer_op)
     if answer_op is not None:
         return answer_op
-    return ConsoleOperator()
+    return ConsoleOperator(robot)
 
 
 def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot_name: str, board: Any, *,
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
-                  measurement_noise: float | None) -> dict[str, Any]:
+                  measurement_noise: float | None, who: str = "auto",
+                  without_current: bool = False) -> dict[str, Any]:
     import click
 
     from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
@@ -214,9 +233,15 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
 
     hello = dict(getattr(board, "hello", {}) or {})
     cpr = hello.get("counts_per_rev") or robot.counts_per_rev
-    if plan.procedure == "energy_trajectories" and plan.settings.get("ammeter_required") \
-            and not getattr(board, "has_battery_current", False):
-        raise UserError(f"{plan.path}: [ammeter] required = true, but the board reports no battery current sensor")
+    if plan.procedure == "energy_trajectories" and not getattr(board, "has_battery_current", False):
+        if plan.settings.get("ammeter_required"):
+            raise UserError(f"{plan.path}: [ammeter] required = true, but the board on {port} reports no "
+                            "battery current sensor and no --ammeter was given")
+        if not without_current:
+            raise UserError(f"energy needs the battery current, but the board on {port} reports no battery "
+                            "current sensor and no --ammeter was given: give --ammeter URL, or --without-current "
+                            "to drive the trajectories anyway (no energy is measured)")
+    operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     if resume is not None:
         writer = RunWriter.resume(Path(resume), board=hello)
         done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
@@ -237,7 +262,6 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
-        operator = _choose_operator(board, plan, answer_op, measurement_noise)
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
         if progress and todo:

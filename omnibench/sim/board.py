@@ -437,4 +437,5 @@ class SimBoard:
                 "mode": self.plant.scenario.mode,
                 "payload": self.plant.scenario.payload,
                 "disconnected": self.disconnected,
+                "pose": [float(v) for v in self.plant.state.pose],  # what a person's tape would read
             }
