@@ -58,7 +58,8 @@ def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
                  echo: Callable[[str], None] = print, progress: bool = False,
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
-                 resume: bool = False) -> dict[str, Any]:
+                 resume: bool = False, without_current: bool = False,
+                 operator: str = "auto") -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -98,7 +99,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
                           progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
-                          resume=prior)
+                          resume=prior, without_current=without_current, operator=operator)
         results["procedures"][p] = res
     results["analysis"] = run_analysis(runs_dir, out, robot_file, echo, stages)
     plots = make_plots(results, out, robot)

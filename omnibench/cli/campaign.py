@@ -23,9 +23,14 @@ import click
               metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
 @click.option("--resume", is_flag=True,
               help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
+@click.option("--without-current", is_flag=True,
+              help="Run the energy trajectories even with no battery current source (no energy is measured).")
+@click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
+              show_default=True, help="Who answers the prompts (see omnibench sweep --help).")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, resume: bool, as_json: bool) -> None:
+            ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
+            as_json: bool) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
@@ -38,7 +43,8 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
 
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                        progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
-                       stages=parse_stages(analysis), resume=resume)
+                       stages=parse_stages(analysis), resume=resume,
+                       without_current=without_current, operator=who)
     if as_json:
         from omnibench.runs.store import json_ready
 

@@ -30,7 +30,8 @@ class Person:
 
     pause(k, prompt_text) -> wall seconds to wait before answering the k-th prompt (0-based).
     tape(k, truth) -> the reading to type at a measuring prompt (default: the truth).
-    remeasure(k, text) -> the answer to a re-measure question (default "keep").
+    remeasure(k, text) -> the answer to a re-measure question (default "keep"; "TRUTH" types
+    the true reading).
     """
 
     served: object
@@ -41,6 +42,7 @@ class Person:
     timeout: float = 240.0
     prompts: list[str] = field(default_factory=list)
     quiet: list[dict] = field(default_factory=list)
+    answered: list[float] = field(default_factory=list)  #: wall time (time.time()) of each answer
     output: str = ""
     _start: tuple[float, float, float] | None = None
 
@@ -98,7 +100,10 @@ class Person:
                 truth = self._truth("distance" if i == 1 else "displacement")
                 child.sendline(self.tape(k, truth) if self.tape else truth)
             else:
-                child.sendline(self.remeasure(k, text))
+                said = self.remeasure(k, text)
+                child.sendline(self._truth("displacement" if "forward;" in text or "m forward" in text
+                                           else "distance") if said == "TRUTH" else said)
+            self.answered.append(time.time())
             k += 1
         child.close()
         return child.exitstatus if child.exitstatus is not None else -(child.signalstatus or 1)

@@ -86,3 +86,58 @@ def test_forward_with_a_person_on_a_realtime_board(tmp_path) -> None:
     assert all(q["motors_stopped"] and q["faults"] == [] for q in person.quiet)
     got = _check_complete(_only_run(out), STEPS["forward"])
     assert got["run"].steps["no_slip"].all()  # the person read the tape right, and it agrees
+
+
+def _host_time(e: dict) -> float:
+    import datetime as dt
+
+    return dt.datetime.fromisoformat(e["host_time"].replace("Z", "+00:00")).timestamp()
+
+
+def test_explicit_answers_and_type_ahead_dropped(fast_served, tmp_path) -> None:
+    """An empty answer confirms nothing (asked again); "yes" typed while the robot was still
+    turning does not confirm the next prompt ("Mount wheel set 'weighted'"): only the answer the
+    person gives after reading it does."""
+    out = tmp_path / "runs"
+
+    def before(person: Person, k: int, text: str) -> None:
+        if k == 0:  # a bare Enter
+            person.child.sendline("")
+            person.child.expect("please type yes or no")
+            person.child.expect(r"Type yes when done, or no to stop")
+        if k == 1:  # answer, then type ahead while the standard set's step runs
+            person.child.sendline("yes")
+            person.child.sendline("yes")
+
+    person = Person(fast_served, ["sweep", "--port", fast_served.path, "--operator", "person",
+                                  "--procedure", str(HERE / "sweep.toml"), "--out", str(out)],
+                    pause=lambda k, text: 0.5 if k == 2 else 0.0)
+    # k == 1 is answered by `before`; the person's own "yes" after it is one more type-ahead
+    assert person.run(before) == 0, person.output[-2000:]
+    assert "Mount wheel set 'weighted'" in person.prompts[2]
+    got = _check_complete(_only_run(out), STEPS["sweep"])
+    ops = [e for e in got["events"] if e["kind"] == "operator"]
+    weighted = next(e for e in ops if e["action"] == "wheels" and e["step"] == 1)
+    assert _host_time(weighted) >= person.answered[2] - 0.05  # confirmed by the answer, not the type-ahead
+    assert person.quiet[0]["telemetry_hz"] == 0  # still waiting, board quiet, after the type-ahead
+    assert "Next: the wheels spin in the air" in person.prompts[2] and "+0.30" in person.prompts[2]
+
+
+def test_tape_far_from_the_encoders_is_questioned_at_once(fast_served, tmp_path) -> None:
+    """Typing 1.02 m after a short run: "encoders say 0.xx m, you typed 1.02 m: re-measure?".
+    Re-measured on the first run (the true reading is kept), kept on the second (flagged)."""
+    out = tmp_path / "runs"
+    person = Person(fast_served, ["forward", "--port", fast_served.path, "--operator", "person",
+                                  "--procedure", str(HERE / "forward.toml"), "--out", str(out)],
+                    tape=lambda k, truth: "1.02 m",
+                    remeasure=lambda k, text: "TRUTH" if k == 5 else "keep")
+    assert person.run() == 0, person.output[-2000:]
+    questions = [p for p in person.prompts if "re-measure" in p]
+    assert len(questions) == 2
+    assert all(__import__("re").search(r"encoders say 0\.\d\d m, you typed 1\.02 m: re-measure\?", q)
+               for q in questions)
+    st = _check_complete(_only_run(out), 2)["run"].steps
+    assert st["tape_questioned"].tolist() == [False, True]
+    assert abs(st["measured_distance"].iloc[0] - abs(st["encoder_distance"].iloc[0])) < 0.03
+    assert st["measured_distance"].iloc[1] == pytest.approx(1.02)
+    assert not st["no_slip"].iloc[1]
