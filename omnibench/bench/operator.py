@@ -271,7 +271,9 @@ class SimulatedOperator:
         return "done"
 
     def remeasure(self, step: Step, question: str) -> Any | None:
-        """Measure again (a fresh tape reading)."""
+        """Measure again (a fresh tape reading); answers from a file are kept."""
+        if self.measurer is not None:
+            return self.measurer.remeasure(step, question)
         return self.measure(step)
 
     def measure(self, step: Step) -> Any:
