@@ -144,6 +144,7 @@ def run_command(
     ammeter: str | None = None,
     operator: str = "auto",
     without_current: bool = False,
+    wiring: str | Path | None = None,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
@@ -178,6 +179,9 @@ def run_command(
         plan = load_plan(pfile, robot, expect=procedure)
     if operator not in OPERATORS:
         raise UserError(f"--operator {operator!r}: choose {', '.join(OPERATORS)}")
+    from omnibench.bench.wiring import wiring_for
+
+    wired, wiring_file = wiring_for(wiring)
     answer_op = AnswersOperator(answers) if answers else None
     if answer_op is not None:
         answer_op.check(plan.steps)
@@ -193,6 +197,11 @@ def run_command(
     from omnibench.bench.board import open_bench_board
 
     with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
+        if wired is not None:
+            from omnibench.bench.wiring import WiredBoard
+
+            board = WiredBoard(board, wired)
+            echo(f"wiring from {wiring_file}: {wired.describe()}")
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
                              measurement_noise=measurement_noise, who=operator,
@@ -200,6 +209,14 @@ def run_command(
 
 
 OPERATORS = ("auto", "person", "simulated")
+
+
+def _wiring_record(board: Any) -> dict[str, Any] | None:
+    """The wiring the run used (None: straight, no wiring file)."""
+    from dataclasses import asdict
+
+    w = getattr(board, "wiring", None)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(w).items()} if w is not None else None
 
 
 def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measurement_noise: float | None,
@@ -253,7 +270,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
             port=port, counts_per_rev=cpr,
             extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
-                   "settings": plan.settings},
+                   "settings": plan.settings, "wiring": _wiring_record(board)},
         )
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")

@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ports": ("omnibench.cli.ports", "List serial ports."),
     "board": ("omnibench.cli.board", "Talk to a motor board: info, monitor."),
     "sim": ("omnibench.cli.sim", "Run the simulated Omnibot board (pseudo-terminal)."),
+    "commission": ("omnibench.cli.commission", "Jog each wheel, check wiring and sensors: write wiring.toml."),
     "sweep": ("omnibench.cli.procedures", "III.i  upside-down voltage sweep."),
     "forward": ("omnibench.cli.procedures", "III.ii forward/backward runs (rolling resistance)."),
     "lateral": ("omnibench.cli.procedures", "III.iii lateral runs with payloads (roller friction)."),

@@ -54,12 +54,14 @@ def _make(name: str) -> click.Command:
                   "your answers).")
     @click.option("--without-current", is_flag=True, hidden=name != "energy",
                   help="Drive the energy trajectories even with no battery current source (no energy is measured).")
+    @click.option("--wiring", type=click.Path(path_type=Path), metavar="FILE", default=None,
+                  help="Wiring file from omnibench commission. Default: ./wiring.toml when it exists.")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
     @click.option("--ammeter", metavar="URL", default=None, hidden=name != "energy",
                   help="SCPI ammeter on its own serial URL for the battery current (default: the board's sensor).")
     def cmd(port: str | None, procedure_file: Path | None, robot_file: Path | None, out: Path,
             dry_run: bool, resume: Path | None, answers: Path | None, measurement_noise: float | None,
-            who: str, without_current: bool, as_json: bool, ammeter: str | None) -> None:
+            who: str, without_current: bool, wiring: Path | None, as_json: bool, ammeter: str | None) -> None:
         from omnibench.bench.session import run_command
 
         def echo(line: str) -> None:
@@ -69,7 +71,7 @@ def _make(name: str) -> click.Command:
             procedure, port=port, procedure_file=procedure_file, robot_file=robot_file, out=out,
             dry_run=dry_run, resume=resume, answers=answers, echo=echo,
             progress=not as_json and sys.stderr.isatty(), measurement_noise=measurement_noise,
-            ammeter=ammeter, operator=who, without_current=without_current,
+            ammeter=ammeter, operator=who, without_current=without_current, wiring=wiring,
         )
         if as_json:
             from omnibench.runs.store import json_ready
