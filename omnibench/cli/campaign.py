@@ -37,6 +37,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
     from omnibench.bench.campaign import parse_stages, run_campaign
+    from omnibench.cli.stages import run_analysis
 
     def echo(line: str) -> None:
         click.echo(line, err=as_json)
@@ -44,7 +45,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                        progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
                        stages=parse_stages(analysis), resume=resume,
-                       without_current=without_current, operator=who)
+                       without_current=without_current, operator=who, analyse=run_analysis)
     if as_json:
         from omnibench.runs.store import json_ready
 
