@@ -61,7 +61,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                  echo: Callable[[str], None] = print, progress: bool = False,
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
                  resume: bool = False, without_current: bool = False,
-                 operator: str = "auto", analyse: Analyse | None = None) -> dict[str, Any]:
+                 operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
+                 verbosity: int = 0) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -104,7 +105,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
                           progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
-                          resume=prior, without_current=without_current, operator=operator)
+                          resume=prior, without_current=without_current, operator=operator, plot=plot,
+                          verbosity=verbosity)
         results["procedures"][p] = res
     if analyse is None:
         results["analysis"] = {n: {"status": "skipped", "why": "no analysis runner given"} for n in ANALYSIS}

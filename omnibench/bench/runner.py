@@ -138,12 +138,15 @@ class Runner:
 
     def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
                  progress: Callable[[float, str], None] | None = None,
-                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0) -> None:
+                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0,
+                 view: Any = None) -> None:
         self.plan, self.robot, self.board, self.writer, self.operator = plan, robot, board, writer, operator
         self._progress = progress or (lambda done, label: None)
         self._step_progress = 0.0
         self.echo = echo or (lambda line: None)
         self.read_timeout = read_timeout
+        #: the live view (omnibench.bench.live.LiveView): every sample, and a pause before prompts
+        self.view = view
         self.world: World | None = None
         self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
@@ -185,6 +188,8 @@ class Runner:
         if mc is not None:
             row.update({f"i{j + 1}": mc[j] for j in range(4)})
         self.writer.sample(row)
+        if self.view is not None:
+            self.view.sample(step, s)
         if data is not None:
             data.t.append(s.t)
             data.enc.append(tuple(s.encoder))
@@ -238,6 +243,8 @@ class Runner:
         and its watchdog (armed only while a duty is non-zero) has nothing to guard, however
         long the pause. Idempotent: consecutive prompts share one quiet period."""
         self._stop()
+        if self.view is not None:
+            self.view.pause()
         if self._paused:
             return
         self.board.configure(telemetry_hz=0, watchdog_s=self.watchdog_s)

@@ -145,6 +145,8 @@ def run_command(
     operator: str = "auto",
     without_current: bool = False,
     wiring: str | Path | None = None,
+    plot: bool = False,
+    verbosity: int = 0,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
@@ -196,6 +198,9 @@ def run_command(
     # 2. the board
     from omnibench.bench.board import open_bench_board
 
+    if port.startswith("sim:"):
+        _prepare_kernel(echo if progress and verbosity >= 0 else None)
+
     with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
         if wired is not None:
             from omnibench.bench.wiring import WiredBoard
@@ -205,10 +210,46 @@ def run_command(
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
                              measurement_noise=measurement_noise, who=operator,
-                             without_current=without_current)
+                             without_current=without_current, plot=plot, verbosity=verbosity)
 
 
 OPERATORS = ("auto", "person", "simulated")
+
+
+def _prepare_kernel(echo: Callable[[str], None] | None) -> None:
+    """Load the simulator's physics kernel now, with a spinner: the first time on a machine (or
+    after a code change) it compiles for about 35 s of CPU, which used to look like a hang."""
+    import time
+
+    from omnibench.model.kernel import load_kernel
+
+    if echo is None:
+        load_kernel()
+        return
+    from rich.console import Console
+
+    t0 = time.monotonic()
+    with Console(stderr=True).status("preparing the simulated robot's physics kernel "
+                                     "(compiled once per machine and code version: about 35 s the first time)"):
+        load_kernel()
+    if time.monotonic() - t0 > 2.0:
+        echo(f"physics kernel ready ({time.monotonic() - t0:.0f} s)")
+
+
+class RunLog:
+    """log.txt in the run folder: what the terminal said, with UTC times (also under -q)."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / "log.txt"
+
+    def __call__(self, line: str) -> None:
+        import datetime as dt
+
+        try:
+            with open(self.path, "a", encoding="utf-8") as fh:
+                fh.write(f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%dT%H:%M:%S.%fZ} {line}\n")
+        except OSError:
+            pass
 
 
 def _wiring_record(board: Any) -> dict[str, Any] | None:
@@ -241,7 +282,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
                   measurement_noise: float | None, who: str = "auto",
-                  without_current: bool = False) -> dict[str, Any]:
+                  without_current: bool = False, plot: bool = False, verbosity: int = 0) -> dict[str, Any]:
     import click
 
     from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
@@ -275,34 +316,35 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
-    bar_ctx: Any = None
+    log = RunLog(writer.path)
+    log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
-        if progress and todo:
-            bar_ctx = click.progressbar(length=max(int(total * 10), 1), label=LABELS[procedure], file=None,
-                                        show_eta=True, show_percent=True)
-        done_ds = [0.0]
+        view = None
+        if progress and todo and verbosity >= 0:
+            from omnibench.bench.live import LiveView, display_available
 
-        def advance(dt: float, label: str) -> None:
-            if bar_ctx is not None:
-                done_ds[0] += dt * 10
-                step = int(done_ds[0])
-                if step:
-                    bar_ctx.update(step)
-                    done_ds[0] -= step
+            if plot and not display_available():
+                echo("--plot: no display here (DISPLAY/WAYLAND_DISPLAY unset): terminal view only")
+            view = LiveView(LABELS[procedure], total, len(plan.steps), cpr, plot=plot and display_available())
+        elif plot:
+            echo("--plot needs the live view (a terminal, without -q/--json)")
 
-        runner = Runner(plan, robot, board, writer, operator, progress=advance,
-                        echo=(lambda line: None) if bar_ctx is not None else echo)
-        if bar_ctx is not None:
-            bar_ctx.__enter__()
+        def runner_echo(line: str) -> None:
+            log(line)
+            if view is None or verbosity > 0:
+                echo(line)
+
+        runner = Runner(plan, robot, board, writer, operator,
+                        progress=view.advance if view is not None else None, echo=runner_echo, view=view)
         try:
             runner.run(todo)
         finally:
-            if bar_ctx is not None:
-                bar_ctx.render_finish()
+            if view is not None:
+                view.close()
         status, reason = "complete", None
     except KeyboardInterrupt:
         status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
@@ -323,6 +365,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         except Exception:  # noqa: BLE001
             pass
         writer.finish(status, reason)
+        log(f"run {status}" + (f": {reason}" if reason else "") + f"; motors {'stopped' if stopped else 'NOT confirmed stopped'}")
         restore()
         if status != "complete":
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "

@@ -53,6 +53,23 @@ def _invoke(cmd: Any, name: str, args: list[str]) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
+def _timed_invoke(cmd: Any, name: str, args: list[str]) -> tuple[int, str, str]:
+    """_invoke with a spinner and the elapsed time on a terminal (fit and diagnose take minutes)."""
+    import sys
+    import time
+
+    if not sys.stderr.isatty():
+        return _invoke(cmd, name, args)
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    t0 = time.monotonic()
+    with console.status(f"{name} running (progress below when it reports any)"):
+        out = _invoke(cmd, name, args)
+    console.print(f"   {name}: {time.monotonic() - t0:.0f} s")
+    return out
+
+
 def _options(cmd: Any) -> set[str]:
     names: set[str] = set()
     for p in getattr(cmd, "params", []):
@@ -100,7 +117,7 @@ def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Calla
             args += ["--json"]
         args.append(str(runs_dir))
         echo(f"== {name}: omnibench {name} {' '.join(args)}")
-        code, so, se = _invoke(cmd, name, args)
+        code, so, se = _timed_invoke(cmd, name, args)
         stage: dict[str, Any] = {"status": "ok" if code == 0 else "failed", "exit_code": code,
                                  "command": f"omnibench {name} {' '.join(args)}",
                                  "stdout": so[-4000:], "stderr": se[-2000:]}

@@ -67,6 +67,10 @@ def test_every_procedure_with_a_person_pausing_up_to_ten_minutes(fast_served, tm
     t = got["run"].samples["t"].to_numpy()
     assert (t[1:] - t[:-1]).max() >= 600.0 * 0.9  # the board clock ran on through the long pause
     assert all("Next:" in p for p in person.prompts if "Type yes" in p)  # says what moves next
+    # the live view showed the step, duties, wheel speeds, currents, battery, faults and the ETA
+    for what in ("step 1/", "duty", "speed rad/s", "current A", "battery", "faults: none", "ETA"):
+        assert what in person.output, what
+    assert "run complete" in (_only_run(out) / "log.txt").read_text()
 
 
 def test_forward_with_a_person_on_a_realtime_board(tmp_path) -> None:
