@@ -175,7 +175,7 @@ def diagnose_lines(res: dict[str, Any]) -> list[str]:
             ev = sel.get("evidence") or {}
             lines.append(f"- `{sel['effect']}` ({sel.get('title', '')}): {params}; likelihood ratio "
                          f"{_fmt_num(ev.get('likelihood_ratio'))} for {ev.get('parameters_added')} parameter(s), "
-                         f"p = {_fmt_num(ev.get('p_value'))}, held-out gain {_pct(ev.get('heldout_gain'))}")
+                         f"p = {_fmt_num(ev.get('p_value'))}, held-out weighted error lower by {_fmt_num(ev.get('heldout_gain'))}")
     else:
         lines.append("**Added**: nothing: no candidate effect earned its parameters on held-out runs.")
     lines.append("")
