@@ -96,6 +96,9 @@ def describe_motion(step: Any, robot: Any) -> str:
         return (f"Next: the wheels spin in the air (robot upside down), {_wheels(u0)}, "
                 f"for at most {step.duration:.0f} s")
     far, x, y = free_path(step, robot)
+    if step.kind == "trajectory" and far < 0.05:
+        return (f"Next: the robot turns in place ({step.params.get('trajectory', 'a trajectory')!r}) for "
+                f"{step.duration:.1f} s: keep the space around it clear")
     if step.kind == "trajectory":
         return (f"Next: the robot drives {step.params.get('trajectory', 'a trajectory')!r} "
                 f"({step.params.get('trajectory_kind', '')}) for {step.duration:.1f} s and may go up to "
