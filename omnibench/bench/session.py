@@ -182,7 +182,7 @@ def run_command(
         raise UserError("no --port given (a serial device such as /dev/ttyACM0, or sim:// for the simulated robot)")
 
     # 2. the board
-    from omnibench.bench.board import open_bench_board
+    from omnibench.bench.link_adapter import open_bench_board
 
     with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
@@ -279,6 +279,8 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         stopped = safe_stop(board)
         try:
             writer.event("motors_stopped", confirmed=stopped)
+            if getattr(board, "link_stats", None) is not None:
+                writer.update(link=board.link_stats)  # retries, lost frames, CRC and time faults
         except Exception:  # noqa: BLE001
             pass
         writer.finish(status, reason)
