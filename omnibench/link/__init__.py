@@ -1,12 +1,12 @@
 """Bytes on a serial port: the protocol description, codec (COBS + CRC), board client, ammeter.
 
 Knows nothing of friction or procedures. The wire format is docs/protocol.md, built from
-protocols/omnibot-board-v1.toml. What procedures use:
+protocols/omnibot-board-v2.toml. What procedures use:
 
     from omnibench.link.board import Board
     from omnibench.link.ammeter import open_ammeter
 
-    Board.open(url, *, timeout=3.0, baudrate=None, protocol="omnibot-board-v1",
+    Board.open(url, *, timeout=3.0, baudrate=None, protocol="omnibot-board-v2",
                strict=True, heartbeat=True) -> Board        # context manager: exit stops motors
     board.hello -> Hello          # protocol_version, firmware_version, board_id, boot_id,
                                   # counts_per_rev, max_telemetry_rate, capabilities, as_dict()

@@ -46,7 +46,7 @@ from omnibench.link.urls import open_url
 READ_TIMEOUT_S = 0.05       #: wall-clock timeout of one blocking port read
 ACK_TIMEOUT_S = 0.3         #: wall-clock wait for an ACK before sending again
 ACK_TIMEOUT_BOARD_S = 0.1   #: ... or this much board time (telemetry keeps arriving)
-RETRIES = 3                 #: extra attempts per command
+RETRIES = 20                #: extra attempts per command (a 2 % byte-error cable loses ~40 % of round trips)
 TIME_SLACK_S = 0.002        #: allowance on a frame's board time beyond the expected telemetry period
 STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
 PROBE_S = 0.45              #: probe unanswered for this long: the link is lost
@@ -87,6 +87,10 @@ class Board:
         self._t_wraps = 0
         self._t_last_raw: int | None = None
         self._t_ref: float | None = None    # board time of the last frame accepted (s)
+        enc = next(f for f in self.spec.message("TELEMETRY").fields if f.name == "encoder")
+        self._enc_range = enc.raw_range     # the encoder counters wrap at the field's width
+        self._enc: list[int] | None = None  # unwrapped counters of the last sample
+        self._enc_raw: tuple[int, ...] = ()
         self._bound_period = math.inf       # largest telemetry period expected now (s); inf: off
         self._board_time = 0.0
         self._last_tx_board = 0.0
@@ -106,6 +110,7 @@ class Board:
         self._bad_frames = 0                # valid CRC but unknown id or wrong length
         self._foreign_version: int | None = None  # from a HELLO whose layout is not ours
         self._reset_reported = False
+        self._reset_id = self.spec.message("RESET_ENCODERS").id
         self._reset_message = ""
 
     # ================================================================== opening
@@ -158,7 +163,8 @@ class Board:
             raise BoardError(
                 f"no HELLO from a board on {self.url} within {timeout:g} s: check the port, the baud rate "
                 f"(board expects {self.spec.board.get('baudrate', 115200)}, opened at {baud}), that the board "
-                f"is powered and runs {self.spec.name} firmware")
+                f"is powered and runs {self.spec.name} v{self.spec.version} firmware (frames of another version's "
+                f"frame check, e.g. v1's CRC-16, are not recognised)")
         self.hello = self._to_hello(hello)
         self._replies.pop("HELLO", None)
         self._acks.clear()
@@ -258,13 +264,13 @@ class Board:
             raise UserError(f"telemetry rate must be a whole number of Hz in 0..{max_hz}, got {telemetry_hz!r}")
         if not 0.02 <= wd <= 10.0:
             raise UserError(f"watchdog timeout must be in 0.02..10 s, got {watchdog_s!r}")
-        old = 1.0 / self._telemetry_hz if self._telemetry_hz > 0 else 0.0
+        old = 1.0 / self._telemetry_hz if self._telemetry_hz > 0 else math.inf
         new = 1.0 / hz if hz > 0 else math.inf
-        self._bound_period = max(old, new)  # frames of either schedule may arrive meanwhile
+        self._bound_period = max(old, new)  # frames of either schedule (or none) may arrive meanwhile
         try:
             self._command("CONFIGURE", {"watchdog": wd, "telemetry_rate": int(hz)})
         except BaseException:
-            self._bound_period = old or math.inf
+            self._bound_period = old
             raise
         self._telemetry_hz, self._watchdog_s = hz, wd
         self._bound_period = new
@@ -521,6 +527,8 @@ class Board:
             self._on_telemetry(msg)
         elif name == "ACK":
             self._set_time(msg.fields["time"])
+            if msg.fields["cmd_id"] == self._reset_id and msg.fields["status"] == self.spec.enums["status"]["OK"]:
+                self._enc = None  # the counters restarted at zero
             self._acks[msg.fields["cmd_seq"]] = msg
             if len(self._acks) > 256:
                 for k in list(self._acks)[:128]:
@@ -568,6 +576,7 @@ class Board:
         if msg.name == "HELLO" and self.hello is not None and msg.fields["boot_id"] != self.hello.boot_id:
             self._last_seq = msg.seq
             self._t_ref = None
+            self._enc = None
             return
         if self._last_seq is not None:
             gap = (msg.seq - self._last_seq - 1) & 0xFFFF
@@ -599,10 +608,23 @@ class Board:
             except (BoardError, serial.SerialException, OSError, ValueError):
                 amm = math.nan
         self._queue.append(Sample(
-            t=t, seq=msg.seq, encoder=tuple(f["encoder"]), motor_current=tuple(f["motor_current"]),
+            t=t, seq=msg.seq, encoder=self._unwrap_encoders(tuple(f["encoder"])), motor_current=tuple(f["motor_current"]),
             battery_voltage=f["battery_voltage"], battery_current=f["battery_current"],
             faults=int(f["faults"]), duty=tuple(f["duty"]), ammeter_current=amm))
         self.stats.telemetry += 1
+
+    def _unwrap_encoders(self, raw: tuple[int, ...]) -> tuple[int, int, int, int]:
+        """Full encoder counts from the wrapping counters on the wire: each sample adds the
+        change since the previous one, taken as the smallest in the field's range."""
+        lo, hi = self._enc_range
+        if self._enc is None:
+            self._enc = list(raw)
+        else:
+            span = hi - lo + 1
+            for j, (r, old) in enumerate(zip(raw, self._enc_raw)):
+                self._enc[j] += (r - old - lo) % span + lo
+        self._enc_raw = raw
+        return tuple(self._enc)  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ board clock
     def _unwrap_peek(self, t_raw_s: float) -> float:

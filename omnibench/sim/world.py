@@ -67,7 +67,7 @@ class World:
     dt: float = 1e-3                     #: physics step, s
     board_id: int = 0x0B0B0001           #: reported in HELLO
     firmware_version: tuple[int, int, int] = (1, 0, 0)
-    protocol: str = "omnibot-board-v1"   #: protocol description (name in protocols/ or path)
+    protocol: str = "omnibot-board-v2"   #: protocol description (name in protocols/ or path)
     baudrate: int = 115200               #: the board's UART speed; a host at another speed reads noise
     name: str | None = None              #: registry name, so `sim://ammeter?board=NAME` finds it
 
