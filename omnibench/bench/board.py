@@ -39,6 +39,14 @@ class BenchBoard(Protocol):
 
     def reset_encoders(self) -> None: ...
 
+    def latched_faults(self) -> int:
+        """Fault bits latched on the board now (telemetry on)."""
+        ...
+
+    def clear_faults(self) -> None:
+        """Clear latched faults; called only after the operator agreed."""
+        ...
+
     def set_duties(self, duties: Sequence[float]) -> float | None:
         """Apply four duties; returns the board time (s) they were applied (None: unknown)."""
         ...

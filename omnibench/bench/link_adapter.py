@@ -77,8 +77,18 @@ class LinkBoard:
 
     def configure(self, *, telemetry_hz: float, watchdog_s: float) -> None:
         self._drain()
-        self.board.clear_faults()
         self.board.configure(telemetry_hz=int(round(telemetry_hz)), watchdog_s=watchdog_s)
+
+    def latched_faults(self, timeout: float = 2.0) -> int:
+        """Fault bits the board has latched now (from the next sample; telemetry must be on)."""
+        s = self.read(timeout)
+        self._buf.appendleft(s)
+        return int(s.faults)
+
+    def clear_faults(self) -> None:
+        """Clear latched faults (only with the operator's consent: the runner asks)."""
+        self._drain()
+        self.board.clear_faults()
 
     def reset_encoders(self) -> None:
         self._drain()
@@ -96,8 +106,8 @@ class LinkBoard:
         return t
 
     def keepalive(self) -> None:
-        """PING the board (feeds its watchdog)."""
-        self.board.ping()
+        """PING the board without waiting for the ACK (feeds its watchdog)."""
+        self.board.keepalive()
 
     @property
     def link_stats(self) -> dict[str, Any]:

@@ -9,7 +9,7 @@ A step's results come only from samples taken under its own command: the board t
 command's acknowledgement says when the board applied it, and a sample is used only if it is
 later than that and reports the duties commanded then (telemetry that queued up on the port
 while the host was busy is written to samples.csv but never counted for the step). The
-board's watchdog is fed from the runner's loop (`keepalive` every quarter watchdog of board or
+board's watchdog is fed from the runner's loop (`keepalive` every eighth of the watchdog of board or
 host time), never by a thread, so a hung runner lets the board stop the motors. Between steps the runner asks the operator for
 the physical actions the next step's world needs (flip, swap wheels, place a weight) and, for
 timed runs, for the start mark and the measurement after the run.
@@ -156,7 +156,9 @@ class Runner:
         self.world: World | None = None
         self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
-        self.keep_every = self.watchdog_s / 4.0
+        #: keepalive period: 8 PINGs per watchdog timeout, so that on a cable losing 20 % of
+        #: the host's frames the watchdog still fires only when the runner stops (0.2^8 ~ 3e-6)
+        self.keep_every = self.watchdog_s / 8.0
         self._fed_board = -math.inf   # board time of the last frame sent (command or keepalive)
         self._fed_host = -math.inf    # host clock of the same
         #: (board time applied, duties) of the commands in force, oldest first (None: no ack time)
@@ -187,8 +189,8 @@ class Runner:
         self._applied_at(self.board.stop(), self._duties)
 
     def _feed_watchdog(self, t_board: float) -> None:
-        """Keepalive when a quarter watchdog of board or host time passed since the last frame
-        sent: called only from the runner's loop, so the board stops the motors if it hangs."""
+        """Keepalive when an eighth of the watchdog timeout of board or host time passed since
+        the last frame sent: called only from the runner's loop, so the board stops the motors if it hangs."""
         now = time.monotonic()
         if t_board - self._fed_board >= self.keep_every or now - self._fed_host >= self.keep_every:
             self.board.keepalive()
@@ -310,6 +312,25 @@ class Runner:
         if n:
             self.writer.event("discarded", samples=int(n), why="telemetry queued while the operator worked")
 
+    def _clear_faults_with_consent(self) -> None:
+        """A fault latched before the run (e.g. the watchdog of an interrupted run) is shown
+        to the operator and cleared only if they agree; both are logged. Declining aborts."""
+        if not hasattr(self.board, "latched_faults"):
+            return
+        flags = int(self.board.latched_faults())
+        if not flags:
+            return
+        names = fault_names(flags)
+        self.writer.event("faults_latched", flags=flags, names=names)
+        action = Action("clear_faults", f"The board has fault {names} latched (motors stopped). Find and fix "
+                        "its cause, then clear it")
+        self.echo(f"operator: {action.prompt}")
+        answer = self.operator.perform(action, None)
+        self.writer.operator_answer(None, action.key, action.prompt, answer, self.operator.source)
+        self.board.clear_faults()
+        self.writer.event("faults_cleared", flags=flags, names=names, by=self.operator.source)
+        self._after_operator()
+
     def _setup_world(self, step: Step) -> None:
         for action in actions_for(self.world, step.world):
             self._ask(action, step)
@@ -327,6 +348,7 @@ class Runner:
         self.board.configure(telemetry_hz=self.plan.settings.get("telemetry_hz", 100.0),
                              watchdog_s=self.watchdog_s)
         self._stop()
+        self._clear_faults_with_consent()
         self.board.reset_encoders()
         self.writer.event("encoders_reset")
         for step in steps:

@@ -44,8 +44,8 @@ from omnibench.link.types import Hello, LinkStats, Pose, Sample
 from omnibench.link.urls import open_url
 
 READ_TIMEOUT_S = 0.05       #: wall-clock timeout of one blocking port read
-ACK_TIMEOUT_S = 0.3         #: wall-clock wait for an ACK before sending again
-ACK_TIMEOUT_BOARD_S = 0.1   #: ... or this much board time (telemetry keeps arriving)
+ACK_TIMEOUT_S = 0.1         #: wall-clock wait for an ACK before sending again
+ACK_TIMEOUT_BOARD_S = 0.03  #: ... or this much board time + one telemetry period (telemetry keeps arriving)
 RETRIES = 20                #: extra attempts per command (a 2 % byte-error cable loses ~40 % of round trips)
 TIME_SLACK_S = 0.002        #: allowance on a frame's board time beyond the expected telemetry period
 STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
@@ -282,6 +282,13 @@ class Board:
     def clear_faults(self) -> None:
         """Clear latched faults (e.g. after the watchdog fired); motors stay stopped."""
         self._command("CLEAR_FAULTS")
+
+    def keepalive(self) -> None:
+        """Feed the board's watchdog: one PING, not waiting for its ACK (any valid frame the
+        board receives restarts its watchdog; on a lossy cable send these often instead of
+        retrying one)."""
+        with self._io:
+            self._send("PING")
 
     def ping(self) -> float:
         """Command round trip: wall-clock seconds from sending PING to its ACK."""

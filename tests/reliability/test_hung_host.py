@@ -60,7 +60,10 @@ def test_hung_runner_is_stopped_by_the_watchdog_within_its_timeout(tmp_path, mon
         meta = json.loads((run_dir / "run.json").read_text())
         wd = [e for e in meta["link"]["events"] if e[1] == "WATCHDOG"]
         assert len(wd) == 1
-        assert 0 < wd[0][0] - t_last <= WATCHDOG_S + 1.0 / RATE_HZ  # board time: stop <= timeout + 1 period
+        # the board stopped the motors after the runner's last sample, its host silence (from the
+        # runner's last frame, sent before it hung) within the timeout + one telemetry period
+        assert wd[0][0] > t_last and wd[0][2] <= 1000 * (WATCHDOG_S + 1.0 / RATE_HZ)
+        # (benchmarks/reliability.py measures the same on the host clock: hang -> stop)
         assert meta["status"] == "failed"
     finally:
         released.set()
