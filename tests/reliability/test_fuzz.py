@@ -10,9 +10,9 @@ P = 0.01
 
 
 def test_model_holds_where_accepts_are_measurable_and_gives_under_1e9_at_32_bits() -> None:
-    narrow = fuzz_frames(20_000, P, width=8, seed=1)
+    narrow = fuzz_frames(12_000, P, width=8, seed=1)
     wire8 = Codec(spec_with_width(8)).wire_size("TELEMETRY")
-    assert narrow.corrupted > 5000  # 1 % of bytes really hit about a third of the frames
+    assert narrow.corrupted > 3000  # 1 % of bytes really hit about a third of the frames
     assert narrow.accepted_bad >= 1  # the fuzzer does find frames a weak check lets through
     assert narrow.rate <= 1.5 * predicted_rate(wire8, P, 8)  # the model is an upper bound
     wire32 = Codec().wire_size("TELEMETRY")
@@ -21,6 +21,6 @@ def test_model_holds_where_accepts_are_measurable_and_gives_under_1e9_at_32_bits
 
 
 def test_crc32_accepts_no_corrupt_frame_and_every_intact_one() -> None:
-    r = fuzz_frames(20_000, P, seed=2)
+    r = fuzz_frames(12_000, P, seed=2)
     assert r.width == 32 and r.accepted_bad == 0
     assert r.accepted_good >= r.frames - r.corrupted - 50  # resynchronised after each bad frame
