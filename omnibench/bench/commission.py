@@ -143,7 +143,7 @@ def commission(port: str, out: str | Path, *, robot_file: str | Path | None = No
                confirm: Callable[[str], None] | None = None, echo: Callable[[str], None] = print,
                timeout: float = 2.0) -> Wiring:
     """Open `port`, find the wiring, write it to `out`; motors stopped on every exit path."""
-    from omnibench.bench.board import open_bench_board
+    from omnibench.bench.link_adapter import open_bench_board
     from omnibench.bench.runner import safe_stop
     from omnibench.bench.session import load_robot_file
 

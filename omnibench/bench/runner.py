@@ -1,8 +1,16 @@
 """The runner: executes a plan's steps on a board, records everything, stops the motors on
 every exit path.
 
-Timing follows the board's clock (telemetry time stamps), never the host's wall clock, so a
-simulated board may run faster than real time. Between steps the runner asks the operator for
+Timing follows the board's clock (telemetry time stamps), so a simulated board may run faster
+than real time; the host's clock only bounds every phase (HOST_SLACK_S beyond its planned
+board time), so no frame with a wrong time can hold a duty longer than planned.
+
+A step's results come only from samples taken under its own command: the board time in each
+command's acknowledgement says when the board applied it, and a sample is used only if it is
+later than that and reports the duties commanded then (telemetry that queued up on the port
+while the host was busy is written to samples.csv but never counted for the step). The
+board's watchdog is fed from the runner's loop (`keepalive` every eighth of the watchdog of board or
+host time), never by a thread, so a hung runner lets the board stop the motors. Between steps the runner asks the operator for
 the physical actions the next step's world needs (flip, swap wheels, place a weight) and, for
 timed runs, for the start mark and the measurement after the run.
 
@@ -25,6 +33,7 @@ from __future__ import annotations
 import functools
 import math
 import signal
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,6 +48,8 @@ from omnibench.errors import BoardError
 QUESTION_FACTOR = 3.0
 
 FAULT_NAMES = ("WATCHDOG", "OVERCURRENT", "UNDERVOLTAGE", "DRIVER", "ESTOP")
+DUTY_LSB = 1.0 / 32767      #: duty resolution on the wire: a reported duty within one LSB is the commanded one
+HOST_SLACK_S = 3.0          #: a phase ends when its board time is done, or this long (host clock) after
 
 
 def fault_names(flags: int) -> str:
@@ -122,6 +133,7 @@ class StepData:
     cur: list[tuple[float, ...] | None] = field(default_factory=list)
     V: list[float | None] = field(default_factory=list)
     I: list[float | None] = field(default_factory=list)
+    rejected: int = 0  #: samples read during the step but not taken under its command
 
     def arrays(self, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
         t = np.asarray(self.t, dtype=float)
@@ -152,11 +164,13 @@ class Runner:
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
         self.telemetry_hz = float(plan.settings.get("telemetry_hz", 100.0))
         self._paused = False  # telemetry off while a person works (see _quiet)
-        self.keep_every = self.watchdog_s / 4.0
-        #: the board client feeds the watchdog itself (omnibench.link); else the runner repeats
-        #: the current duties (or a keepalive) every quarter watchdog of board time
-        self.self_heartbeat = bool(getattr(board, "self_heartbeat", False))
-        self._last_cmd_t = -math.inf
+        #: keepalive period: 8 PINGs per watchdog timeout, so that on a cable losing 20 % of
+        #: the host's frames the watchdog still fires only when the runner stops (0.2^8 ~ 3e-6)
+        self.keep_every = self.watchdog_s / 8.0
+        self._fed_board = -math.inf   # board time of the last frame sent (command or keepalive)
+        self._fed_host = -math.inf    # host clock of the same
+        #: (board time applied, duties) of the commands in force, oldest first (None: no ack time)
+        self._applied: list[tuple[float | None, tuple[float, ...]]] = []
         self._duties = (0.0, 0.0, 0.0, 0.0)
         self.done_time = 0.0
         self.records: list[dict[str, Any]] = []
@@ -167,21 +181,52 @@ class Runner:
         self._progress(dt, label)
 
     # -- board helpers ----------------------------------------------------------------------
-    def _command(self, duties: Sequence[float], t_now: float | None = None) -> None:
+    def _applied_at(self, t: float | None, duties: tuple[float, ...]) -> None:
+        self._applied.append((t, duties))
+        del self._applied[:-8]  # older commands cannot matter for samples still to come
+        self._fed_host = time.monotonic()
+        if t is not None:
+            self._fed_board = t
+
+    def _command(self, duties: Sequence[float]) -> None:
         self._duties = tuple(float(u) for u in duties)
-        self.board.set_duties(self._duties)
-        if t_now is not None:
-            self._last_cmd_t = t_now
+        self._applied_at(self.board.set_duties(self._duties), self._duties)
 
     def _stop(self) -> None:
         self._duties = (0.0, 0.0, 0.0, 0.0)
-        self.board.stop()
+        self._applied_at(self.board.stop(), self._duties)
 
-    def _read(self, step: Step, data: StepData | None) -> Any:
+    def _feed_watchdog(self, t_board: float) -> None:
+        """Keepalive when an eighth of the watchdog timeout of board or host time passed since
+        the last frame sent: called only from the runner's loop, so the board stops the motors if it hangs."""
+        now = time.monotonic()
+        if t_board - self._fed_board >= self.keep_every or now - self._fed_host >= self.keep_every:
+            self.board.keepalive()
+            self._fed_board, self._fed_host = t_board, now
+
+    def _under_command(self, s: Any, t_from: float | None) -> bool:
+        """Was sample `s` taken under the runner's current commands? It must be later than
+        `t_from` (the phase's first command) and report the duties of the command in force
+        at its time (the latest one applied before it)."""
+        if t_from is not None and not s.t > t_from:
+            return False
+        in_force = None
+        for t_ack, duties in self._applied:
+            if t_ack is None or t_ack < s.t:
+                in_force = duties
+        if in_force is None:
+            return False
+        return all(abs(float(a) - b) <= 1.01 * DUTY_LSB for a, b in zip(s.duty, in_force))
+
+    def _read(self, step: Step, data: StepData, t_from: float | None = None) -> Any:
+        """Read and record the next sample; returns it if it was taken under the current
+        command (after `t_from`, with the commanded duties), else None. Samples not taken
+        under the step's command are written to samples.csv with no step."""
         s = self.board.read(self.read_timeout)
+        ok = self._under_command(s, t_from)
         mc = s.motor_current if getattr(self.board, "has_motor_current", True) else None
         ib = s.battery_current if getattr(self.board, "has_battery_current", True) else None
-        row = {"step": step.index, "t": s.t, "seq": s.seq, "faults": s.faults,
+        row = {"step": step.index if ok else None, "t": s.t, "seq": s.seq, "faults": s.faults,
                **{f"u{j + 1}": s.duty[j] for j in range(4)},
                **{f"enc{j + 1}": s.encoder[j] for j in range(4)},
                "V_batt": s.battery_voltage, "I_batt": ib}
@@ -190,34 +235,52 @@ class Runner:
         self.writer.sample(row)
         if self.view is not None:
             self.view.sample(step, s)
-        if data is not None:
-            data.t.append(s.t)
-            data.enc.append(tuple(s.encoder))
-            data.cur.append(tuple(mc) if mc is not None else None)
-            data.V.append(s.battery_voltage)
-            data.I.append(ib)
         if s.faults:
             self.writer.event("fault", t=s.t, step=step.index, flags=int(s.faults), names=fault_names(int(s.faults)))
             self._stop()
             raise BoardError(f"board reported fault {fault_names(int(s.faults))} during step {step.index} "
                              f"({step.label})")  # the session then confirms the motors stopped
-        if (not self.self_heartbeat and self._duties != (0.0, 0.0, 0.0, 0.0)
-                and s.t - self._last_cmd_t >= self.keep_every):
-            self._command(self._duties, s.t)  # keep the watchdog fed with the same duties
+        self._feed_watchdog(s.t)
+        if not ok:
+            data.rejected += 1
+            return None
+        data.t.append(s.t)
+        data.enc.append(tuple(s.encoder))
+        data.cur.append(tuple(mc) if mc is not None else None)
+        data.V.append(s.battery_voltage)
+        data.I.append(ib)
         return s
+
+    def _next(self, step: Step, data: StepData, t_from: float | None, host_end: float) -> Any:
+        """The next sample under the current command (None once `host_end` has passed)."""
+        while time.monotonic() <= host_end:
+            s = self._read(step, data, t_from)
+            if s is not None:
+                return s
+        return None
 
     def _run_for(self, step: Step, data: StepData, duration: float,
                  schedule: list[tuple[float, tuple[float, ...]]] | None,
-                 until: Callable[[float], bool] | None = None) -> tuple[float, float]:
-        """Apply `schedule` (None: motors off) for `duration` board seconds; returns (t0, t_end)."""
+                 until: Callable[[float], bool] | None = None,
+                 accept_from: float | None = None) -> tuple[float, float]:
+        """Apply `schedule` (None: motors off, as the caller left them) for `duration` board
+        seconds; returns (t0, t_end): board time the phase's command was applied, last sample.
+
+        Only samples taken under the step's commands (after `accept_from`, default: this
+        phase's command) are added to `data` and count time. The phase also ends
+        `HOST_SLACK_S` after its duration on the host's clock. After an operator pause the
+        link is re-synchronised first."""
         self._resync()
         if schedule:
             self._command(schedule[0][1])
+        t_cmd = self._applied[-1][0] if self._applied else None
+        t_from = t_cmd if accept_from is None else accept_from
+        host_end = time.monotonic() + duration + HOST_SLACK_S
         k = 0
-        s = self._read(step, data)
-        t0 = s.t
-        if schedule:
-            self._last_cmd_t = t0
+        s = self._next(step, data, t_from, host_end)
+        if s is None:
+            return self._host_limit(step, t_cmd, t_cmd)
+        t0 = t_cmd if t_cmd is not None else s.t
         last_progress = t0
         while True:
             rel = s.t - t0
@@ -226,16 +289,27 @@ class Runner:
             if schedule:
                 while k + 1 < len(schedule) and rel >= schedule[k + 1][0]:
                     k += 1
-                    self._command(schedule[k][1], s.t)
-            elif not self.self_heartbeat and s.t - self._last_cmd_t >= self.keep_every:
-                self.board.keepalive()
-                self._last_cmd_t = s.t
+                    self._command(schedule[k][1])
             if s.t - last_progress >= 0.2:
                 self.progress(s.t - last_progress, step.label)
                 last_progress = s.t
-            s = self._read(step, data)
+            nxt = self._next(step, data, t_from, host_end)
+            if nxt is None:
+                self._host_limit(step, t0, s.t)
+                break
+            s = nxt
         self.progress(s.t - last_progress, step.label)
         return t0, s.t
+
+    def _host_limit(self, step: Step, t0: float | None, t_end: float | None) -> tuple[float, float]:
+        """The phase overran its time on the host's clock: stop the motors, say so."""
+        self._stop()
+        self.writer.event("host_time_limit", step=step.index, t=t_end,
+                          why=f"phase not done after its duration + {HOST_SLACK_S:g} s of host time")
+        if t0 is None or t_end is None:
+            raise BoardError(f"no telemetry under step {step.index}'s command ({step.label}) within its time "
+                             "limit on the host clock")
+        return t0, t_end
 
     # -- the operator -------------------------------------------------------------------------
     def _quiet(self, why: str) -> None:
@@ -267,6 +341,25 @@ class Runner:
         answer = self.operator.perform(action, step)
         self.writer.operator_answer(step.index, action.key, action.prompt, answer, self.operator.source)
 
+    def _clear_faults_with_consent(self) -> None:
+        """A fault latched before the run (e.g. the watchdog of an interrupted run) is shown
+        to the operator and cleared only if they agree; both are logged. Declining aborts."""
+        if not hasattr(self.board, "latched_faults"):
+            return
+        flags = int(self.board.latched_faults())
+        if not flags:
+            return
+        names = fault_names(flags)
+        self.writer.event("faults_latched", flags=flags, names=names)
+        action = Action("clear_faults", f"The board has fault {names} latched (motors stopped). Find and fix "
+                        "its cause, then clear it")
+        self._quiet("operator: clear_faults")
+        self.echo(f"operator: {action.prompt}")
+        answer = self.operator.perform(action, None)
+        self.writer.operator_answer(None, action.key, action.prompt, answer, self.operator.source)
+        self.board.clear_faults()
+        self.writer.event("faults_cleared", flags=flags, names=names, by=self.operator.source)
+
     def _setup_world(self, step: Step) -> None:
         for action in actions_for(self.world, step.world):
             self._ask(action, step)
@@ -280,8 +373,10 @@ class Runner:
     # -- steps ---------------------------------------------------------------------------------
     def run(self, steps: Sequence[Step]) -> list[dict[str, Any]]:
         """Run `steps` in order; each completed step is written at once (resume-safe)."""
+        _t_crit(0.95, 10)  # import scipy.stats now: importing it mid-step stalls the loop (~1 s)
         self.board.configure(telemetry_hz=self.telemetry_hz, watchdog_s=self.watchdog_s)
         self._stop()
+        self._clear_faults_with_consent()
         self.board.reset_encoders()
         self.writer.event("encoders_reset")
         for step in steps:
@@ -342,7 +437,7 @@ class Runner:
         rec: dict[str, Any] = {
             "steady": bool(v.steady) if v is not None else False,
             "hold_time": t_end - t0, "t_rest": t_rest, "t_hold": t0, "t_start": t_rest if t_rest is not None else t0,
-            "t_end": t_end,
+            "t_end": t_end, "samples_used": len(hold.t), "samples_rejected": data.rejected + hold.rejected,
             **{f"w{j + 1}": float(w[j]) for j in range(4)},
             **{f"w_std{j + 1}": float(np.std(wk[:, j], ddof=1)) if len(wk) > 1 else None for j in range(4)},
         }
@@ -374,7 +469,7 @@ class Runner:
         data = StepData()
         t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
         self._stop()
-        _, t_end = self._run_for(step, data, step.settle, None)
+        _, t_end = self._run_for(step, data, step.settle, None, accept_from=t0)
         return data, t0, t_drive_end, t_end
 
     def _timed(self, step: Step) -> dict[str, Any]:
@@ -383,7 +478,7 @@ class Runner:
         dphi = phi[-1] - phi[0]
         self._quiet("operator: measure")
         measured, questioned = self._measure(step, dphi)
-        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
+        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end, "samples_rejected": data.rejected,
                 **self.slip_check(dphi, measured, step), "tape_questioned": questioned,
                 **self._electrical(data)}
 
@@ -465,7 +560,7 @@ class Runner:
         # an external ammeter reads less often than the telemetry: integrate over its readings
         has_current = bool(ok.sum() >= 2)
         rec: dict[str, Any] = {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
-                               "has_current": has_current, "current_samples": int(ok.sum())}
+                               "samples_rejected": data.rejected, "has_current": has_current, "current_samples": int(ok.sum())}
         if has_current:
             tt, P, II = t[ok], V[ok] * I[ok], I[ok]
             rec.update(energy=float(np.trapezoid(P, tt)), charge=float(np.trapezoid(II, tt)),

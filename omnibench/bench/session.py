@@ -8,9 +8,12 @@ checked before the port is opened, so a bad input never moves a motor.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -127,6 +130,45 @@ def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
     return []
 
 
+#: errors of the output file system: reported in one line naming the file, run left resumable
+DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EIO}
+RESERVE_NAME = "run.json.reserve"
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the run directory (nothing is written): a second process
+    writing the same run (two `--resume` at once) is refused, naming the first."""
+    from omnibench import locks
+
+    try:
+        fd = locks.lock_directory(run_dir)
+    except locks.Locked as exc:
+        raise UserError(f"{run_dir}: this run is being written by {exc.holder}; wait for it to end "
+                        "(one process per run)") from None
+    try:
+        yield
+    finally:
+        os.close(fd)
+
+
+def reserve_space(run_dir: Path, nbytes: int) -> Path:
+    """Claim `nbytes` on the run's file system before the robot moves (a file of zeros), so
+    that on a full disk run.json can still be marked (the reserve is freed first)."""
+    path = run_dir / RESERVE_NAME
+    with open(path, "wb") as fh:
+        fh.write(b"\0" * nbytes)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return path
+
+
+def disk_error_line(exc: OSError, run_dir: Path) -> str:
+    """'cannot write FILE: No space left on device' (the file named)."""
+    name = exc.filename or (run_dir / "samples.csv")
+    return f"cannot write {name}: {exc.strerror or exc}"
+
+
 def run_command(
     procedure: str,
     *,
@@ -179,6 +221,12 @@ def run_command(
         robot, robot_text, robot_name = load_robot_file(robot_file)
         pfile = Path(procedure_file) if procedure_file else default_procedure_path(procedure)
         plan = load_plan(pfile, robot, expect=procedure)
+        out_path = Path(out)
+        if out_path.exists() and not out_path.is_dir():
+            raise UserError(f"--out {out_path}: exists and is not a directory (runs are written into a directory)")
+        if (out_path / "run.json").is_file():
+            raise UserError(f"--out {out_path}: is a run directory; give the folder that should hold the new run, "
+                            "or --resume it")
     if operator not in OPERATORS:
         raise UserError(f"--operator {operator!r}: choose {', '.join(OPERATORS)}")
     from omnibench.bench.wiring import wiring_for
@@ -195,13 +243,14 @@ def run_command(
     if not port:
         raise UserError("no --port given (a serial device such as /dev/ttyACM0, or sim:// for the simulated robot)")
 
-    # 2. the board
-    from omnibench.bench.board import open_bench_board
+    # 2. the board (a resumed run is locked first: a second --resume is refused before any port)
+    from omnibench.bench.link_adapter import open_bench_board
 
     if port.startswith("sim:"):
         _prepare_kernel(echo if progress and verbosity >= 0 else None)
 
-    with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
+    with (run_lock(Path(resume)) if resume is not None else contextlib.nullcontext()), \
+            open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
         if wired is not None:
             from omnibench.bench.wiring import WiredBoard
 
@@ -301,26 +350,36 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                             "to drive the trajectories anyway (no energy is measured)")
     operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     if resume is not None:
+        (Path(resume) / RESERVE_NAME).unlink(missing_ok=True)  # left by a killed run
         writer = RunWriter.resume(Path(resume), board=hello)
         done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
         todo = [s for s in plan.steps if s.index not in done]
         echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
     else:
-        writer = RunWriter.create(
-            Path(out), procedure, procedure_text=plan.text, procedure_file=str(plan.path),
-            robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
-            port=port, counts_per_rev=cpr,
-            extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
-                   "settings": plan.settings, "wiring": _wiring_record(board)},
-        )
+        try:
+            writer = RunWriter.create(
+                Path(out), procedure, procedure_text=plan.text, procedure_file=str(plan.path),
+                robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
+                port=port, counts_per_rev=cpr,
+                extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
+                       "settings": plan.settings, "wiring": _wiring_record(board)},
+            )
+        except OSError as exc:
+            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
+    disk_full = False
+    reserve: Path | None = None
+    lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
+    lock.__enter__()
     log = RunLog(writer.path)
     log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
+        meta_size = len(json.dumps(writer.metadata, default=str))
+        reserve = reserve_space(writer.path, max(256 * 1024, 8 * meta_size))  # before the robot moves
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
         view = None
@@ -355,22 +414,39 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     except UserError as exc:
         status, reason = "failed", str(exc)
         raise
+    except OSError as exc:
+        if exc.errno not in DISK_ERRNOS:
+            status, reason = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
+            raise
+        status, reason, disk_full = "failed", disk_error_line(exc, writer.path), True
+        raise UserError(reason) from None
     except Exception as exc:
         status, reason = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
         raise
     finally:
         stopped = safe_stop(board)
+        if reserve is not None:
+            reserve.unlink(missing_ok=True)  # frees the space run.json needs, even on a full disk
         try:
             writer.event("motors_stopped", confirmed=stopped)
+            if getattr(board, "link_stats", None) is not None:
+                writer.update(link=board.link_stats)  # retries, lost frames, CRC and time faults
         except Exception:  # noqa: BLE001
             pass
-        writer.finish(status, reason)
+        try:
+            writer.finish(status, reason)
+        except OSError as exc:  # never hide the first error; say what could not be marked
+            click.echo(f"omnibench: also {disk_error_line(exc, writer.path)} (run.json may still say running)",
+                       err=True)
         log(f"run {status}" + (f": {reason}" if reason else "") + f"; motors {'stopped' if stopped else 'NOT confirmed stopped'}")
         restore()
+        lock.__exit__(None, None, None)
         if status != "complete":
+            resumable = status == "aborted" or disk_full
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
-                 f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
-                                                   if status == "aborted" else ""), err=True)
+                       f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
+                                                        + (" once there is space" if disk_full else "")
+                                                        if resumable else ""), err=True)
     return completed_run_summary(procedure, writer.path, echo)
 
 

@@ -99,12 +99,18 @@ def dumps(obj: Any) -> str:
 def write_json_atomic(path: Path, obj: Any) -> None:
     """Write JSON to `path` so that a crash leaves either the old or the new file, never half."""
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(json.dumps(_clean(obj), default=_json_default, indent=2, allow_nan=False))
-        fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    text = json.dumps(_clean(obj), default=_json_default, indent=2, allow_nan=False) + "\n"
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)  # no stray temporary file (e.g. the disk is full)
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise
 
 
 def _fmt(v: Any) -> str:

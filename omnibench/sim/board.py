@@ -79,6 +79,8 @@ class SimBoard:
         b = self.spec.board
         self._max_rate = int(b.get("max_telemetry_hz", 1000))
         self._default_watchdog_us = int(round(float(b.get("default_watchdog_s", 0.5)) * 1e6))
+        enc = next(f for f in self.spec.message("TELEMETRY").fields if f.name == "encoder")
+        self._encoder_range = enc.raw_range
         self._boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -371,7 +373,8 @@ class SimBoard:
         s = self.plant.state
         counts = self.sensors.encoder_counts(s.phi) - self.encoder_offset
         counts = self._channels(counts, self.world.encoder_wiring or self.world.wiring).astype(np.int64)
-        counts = ((counts + 2**31) % 2**32) - 2**31  # int32 counters wrap
+        lo, hi = self._encoder_range
+        counts = ((counts - lo) % (hi - lo + 1)) + lo  # the counters wrap at the field's width
         amps = self._channels(np.asarray(s.motor_current), self.world.wiring)
         cur = np.clip(np.round(self.sensors.motor_current(amps) * 1000), -32768, 32767)
         duty = np.clip(np.round(self.duties * DUTY_FULL_SCALE), -DUTY_FULL_SCALE, DUTY_FULL_SCALE)
