@@ -217,7 +217,13 @@ class Observations:
             if not found:
                 raise UserError(f"{p}: no run directory here (no run.json)")
             dirs.extend(found)
-        items = [_from_run(read_run(d), robot) for d in dirs]
+        items = []
+        seen: set[str] = set()
+        for d in dict.fromkeys(Path(x).resolve() for x in dirs):
+            run = read_run(d)
+            rid = run_key(run, seen)
+            seen.add(rid)
+            items.append(_from_run(run, robot, rid))
         return cls.concat(items)
 
     # ----------------------------------------------------------------------------- simulated
@@ -284,12 +290,26 @@ def _col(steps: pd.DataFrame, name: str) -> pd.Series:
     return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
 
 
-def _from_run(run: Any, robot: Any) -> Observations:
+def run_key(run: Any, taken: set[str] | frozenset[str] = frozenset()) -> str:
+    """The key a run's rows carry: its run id, made unique against `taken` with its folder
+    (older runs, and two runs copied from one, can share an id: never merge them by id alone)."""
+    rid = str(run.metadata.get("run_id") or run.path.name)
+    if rid not in taken:
+        return rid
+    rid = f"{rid}@{run.path.parent.name}/{run.path.name}"
+    n = 2
+    key = rid
+    while key in taken:
+        key, n = f"{rid}#{n}", n + 1
+    return key
+
+
+def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
         raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
                         f"({', '.join(RUN_PROCEDURES)})")
-    rid = str(run.metadata.get("run_id") or run.path.name)
+    rid = rid or run_key(run)
     rb = _run_robot(run, robot)
     cpr = float(run.metadata.get("counts_per_rev") or rb.counts_per_rev)
     imported = bool(run.metadata.get("imported", False))

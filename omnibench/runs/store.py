@@ -24,6 +24,7 @@ import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -136,6 +137,12 @@ def new_run_dir(out: Path, procedure: str) -> Path:
             path = Path(f"{base}-{n}")
 
 
+def unique_run_id(path: Path) -> str:
+    """The run's id: its directory name plus 8 random hex digits, so two runs started in the
+    same second in two folders never share an id (the analysis merges runs by id)."""
+    return f"{Path(path).name}-{uuid.uuid4().hex[:8]}"
+
+
 class RunWriter:
     """Writes one run directory as the run goes; every exit path leaves it readable.
 
@@ -193,7 +200,7 @@ class RunWriter:
         meta: dict[str, Any] = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
-            "run_id": path.name,
+            "run_id": unique_run_id(path),
             "procedure": procedure,
             "procedure_file": procedure_file,
             "procedure_text": procedure_text,
