@@ -179,6 +179,28 @@ def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndar
     return (idx + 1).astype(np.int64), np.ascontiguousarray(u_full)
 
 
+def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
+    """Latency of each wheel's command (4,), s, from the enabled timing terms
+    (omnibench.effects.timing): zero unless the robot or its world carries one."""
+    from omnibench.effects.timing import wheel_delays
+
+    return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
+
+
+def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd):
+    """The duty schedules as the motors receive them: each wheel shifted by its latency
+    (unchanged, the same arrays, when no trajectory has one)."""
+    from omnibench.effects.timing import delay_schedules
+
+    delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
+    if not np.any(delays):
+        return t_cmd, u_cmd
+    t = np.asarray(t_cmd, dtype=float)
+    U = np.asarray(u_cmd, dtype=float).reshape(-1, t.shape[0], 4)
+    U = np.broadcast_to(U, (len(robots),) + U.shape[1:])
+    return delay_schedules(t, U, delays)
+
+
 @dataclass
 class BatchResult:
     """Recorded signals of B trajectories: array (B, n_rec, n_signals), times t (n_rec,)."""
@@ -230,6 +252,7 @@ def simulate_batch(
     mod = kernel.load_kernel(lay)
     preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
     n_steps = int(round(t_end / dt))
+    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd)
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
         raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
@@ -342,6 +365,8 @@ class Simulator:
         self._prep = prep
         self._sub = np.array([stable_substeps(prep.substeps_lambda, self.dt, self.method)], dtype=np.int64)
         self._duties = np.zeros(4)
+        self._delays = command_delays(self.robot, scenario)
+        self._history: list[tuple[float, np.ndarray]] = []  # (time issued, duties): latency queue
         self._last = self._advance_steps(np.zeros(4), 0)
 
     def _advance_steps(self, duties: np.ndarray, n: int) -> np.ndarray:
@@ -371,11 +396,36 @@ class Simulator:
         target = int(round((self.t + duration) / self.dt))
         n = max(0, target - self._steps)
         self._duties = duties
-        if n:
+        if np.any(self._delays):
+            self._advance_delayed(duties, target)
+        elif n:
             self._last = self._advance_steps(duties, n)
         else:
             self._last = self._advance_steps(duties, 0)
         return self.state
+
+    def _advance_delayed(self, duties: np.ndarray, target: int) -> None:
+        """`advance` with command latency: each wheel acts on the duties issued delays[j] s
+        earlier, so integrate piecewise between the instants a delayed command arrives (each
+        applied from the first physics step at or after it, as in `simulate_batch`)."""
+        self._history.append((self.t, duties))
+        while True:
+            now = self.t
+            eff = np.zeros(4)
+            for j in range(4):
+                for t_c, u in self._history:
+                    if t_c + self._delays[j] <= now + 1e-9 * self.dt:
+                        eff[j] = u[j]
+            arrivals = [t_c + d for t_c, _ in self._history for d in self._delays if t_c + d > now + 1e-9 * self.dt]
+            nxt = min(target, min((math.ceil(a / self.dt - 1e-9) for a in arrivals), default=target))
+            nxt = max(nxt, self._steps + 1) if target > self._steps else self._steps
+            self._last = self._advance_steps(eff, nxt - self._steps)
+            if self._steps >= target:
+                break
+        # forget commands every wheel has moved past (keep the one each wheel still holds)
+        done = [k for k, (t_c, _) in enumerate(self._history) if t_c + self._delays.max() <= self.t]
+        if done:
+            del self._history[: done[-1]]
 
     @property
     def state(self) -> SimState:
