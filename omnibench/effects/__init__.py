@@ -8,3 +8,5 @@ realistic size, the experiment that reveals it). docs/effects.md has the equatio
 
 from omnibench.effects import driver, electrical, environment, friction_extra, load, timing  # noqa: F401
 from omnibench.effects.library import EFFECTS, Effect, effect_names  # noqa: F401
+
+EFFECTS.update(timing.library_effects())  # command timing (effects/timing.py)

@@ -92,15 +92,74 @@ def wheel_delays(terms: Mapping[str, Mapping[str, float]], order: Sequence[int] 
     return d
 
 
-def delay_schedules(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def delay_schedules(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray,
+                    dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Zero-order-hold schedules (t_cmd (K,), U (B, K, 4)) with wheel j of trajectory b delayed
-    by delays[b, j] s -> (t (K',), U' (B, K', 4)) on the union of the shifted time stamps;
-    0 before a wheel's first delayed command (and before t_cmd[0] as always)."""
+    by delays[b, j] s -> (t (K',), U' (B, K', 4)) on one common time base; 0 before a wheel's
+    first delayed command (and before t_cmd[0] as always).
+
+    With `dt` (the physics step) a delayed change that falls inside a step gives that step the
+    time average of the duty over it: the kernel holds one duty per step, and the average makes
+    the trajectory a continuous function of the latency (a fit can differentiate it) and exact
+    for the energy the driver delivers over the step."""
     t_cmd = np.asarray(t_cmd, dtype=float)
     U = np.asarray(U, dtype=float)
-    delays = np.asarray(delays, dtype=float).reshape(U.shape[0], 4)
-    times = np.unique((t_cmd[None, None, :] + delays[:, :, None]).ravel())
-    idx = np.searchsorted(t_cmd, times[None, None, :] - delays[:, :, None] + 1e-12, side="right") - 1  # (B, 4, K')
-    gathered = np.take_along_axis(U.transpose(0, 2, 1), np.maximum(idx, 0), axis=2)  # (B, 4, K')
-    out = np.where(idx >= 0, gathered, 0.0).transpose(0, 2, 1)
-    return times, np.ascontiguousarray(out)
+    B = U.shape[0]
+    delays = np.asarray(delays, dtype=float).reshape(B, 4)
+    shifted = t_cmd[None, None, :] + delays[:, :, None]  # (B, 4, K)
+    if dt is None:
+        times = np.unique(shifted.ravel())
+        idx = np.searchsorted(t_cmd, times[None, None, :] - delays[:, :, None] + 1e-12, side="right") - 1
+        gathered = np.take_along_axis(U.transpose(0, 2, 1), np.maximum(idx, 0), axis=2)  # (B, 4, K')
+        return times, np.ascontiguousarray(np.where(idx >= 0, gathered, 0.0).transpose(0, 2, 1))
+    k = np.floor(shifted.ravel() / dt + 1e-9)
+    times = np.unique(np.concatenate([k * dt, (k + 1) * dt]))
+    lo = _integral(t_cmd, U, delays, times)
+    hi = _integral(t_cmd, U, delays, times + dt)
+    return times, np.ascontiguousarray(((hi - lo) / dt).transpose(0, 2, 1))
+
+
+def _integral(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """int_0^t u_j(s - d_j) ds of each delayed zero-order-hold schedule at times `at`: (B, 4, len(at))."""
+    Uw = U.transpose(0, 2, 1)  # (B, 4, K)
+    widths = np.diff(t_cmd)
+    cum = np.concatenate([np.zeros(Uw.shape[:2] + (1,)), np.cumsum(Uw[:, :, :-1] * widths, axis=2)], axis=2)
+    rel = at[None, None, :] - delays[:, :, None]  # time in the undelayed schedule
+    m = np.searchsorted(t_cmd, rel, side="right") - 1
+    mc = np.maximum(m, 0)
+    val = np.take_along_axis(cum, mc, axis=2) + np.take_along_axis(Uw, mc, axis=2) * (rel - t_cmd[mc])
+    return np.where(m >= 0, val, 0.0)
+
+
+def step_average(history: Sequence[tuple[float, np.ndarray]], delays: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    """Average over [t0, t1] of each wheel's delayed duty, from commands issued at the times
+    in `history` ((time, duties (4,)), increasing); 0 before the first. For the step-by-step
+    simulator: the same duty per physics step as `delay_schedules(..., dt)`."""
+    t = np.array([h[0] for h in history], dtype=float)
+    U = np.array([h[1] for h in history], dtype=float)[None]
+    d = np.asarray(delays, dtype=float)[None]
+    ends = _integral(t, U, d, np.array([t0, t1]))[0]
+    return (ends[:, 1] - ends[:, 0]) / (t1 - t0)
+
+
+def library_effects() -> dict:
+    """The timing candidates as diagnosis sees them (omnibench.effects.library.Effect)."""
+    from omnibench.effects.library import Effect
+
+    order = {"per_wheel_latency": "log the command's arrival at each driver (or swap the send order in "
+                                  "the firmware): a serial pattern moves with the order, a wheel's own "
+                                  "latency does not"}
+    return {e.name: e for e in (
+        Effect("command_latency", fit=("tau",), example={"tau": 0.02}, start={"tau": 0.005},
+               procedures=("step_response",), variable="time since duty change",
+               separates={"serial_command_latency": "compare wheels: a serial link makes the latency grow "
+                          "along the send order"}),
+        Effect("serial_command_latency", fit=("tau", "tau_packet"),
+               example={"tau": 0.01, "tau_packet": PACKET_9600}, start={"tau": 0.005, "tau_packet": 0.002},
+               procedures=("step_response",), variable="time since duty change", separates=order),
+        Effect("per_wheel_latency", fit=("tau_1", "tau_2", "tau_3", "tau_4"),
+               example={"tau_1": 0.004, "tau_2": 0.008, "tau_3": 0.0125, "tau_4": 0.0167},
+               start={f"tau_{j}": 0.005 for j in range(1, 5)},
+               procedures=("step_response",), variable="time since duty change",
+               separates={"serial_command_latency": order["per_wheel_latency"]}),
+    )}

@@ -187,9 +187,10 @@ def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
     return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
 
 
-def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd):
-    """The duty schedules as the motors receive them: each wheel shifted by its latency
-    (unchanged, the same arrays, when no trajectory has one)."""
+def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd, dt: float):
+    """The duty schedules as the motors receive them: each wheel shifted by its latency, a
+    change inside a physics step averaged over it (unchanged, the same arrays, when no
+    trajectory has a latency)."""
     from omnibench.effects.timing import delay_schedules
 
     delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
@@ -198,7 +199,7 @@ def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cm
     t = np.asarray(t_cmd, dtype=float)
     U = np.asarray(u_cmd, dtype=float).reshape(-1, t.shape[0], 4)
     U = np.broadcast_to(U, (len(robots),) + U.shape[1:])
-    return delay_schedules(t, U, delays)
+    return delay_schedules(t, U, delays, dt)
 
 
 @dataclass
@@ -252,7 +253,7 @@ def simulate_batch(
     mod = kernel.load_kernel(lay)
     preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
     n_steps = int(round(t_end / dt))
-    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd)
+    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd, dt)
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
         raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
@@ -406,24 +407,26 @@ class Simulator:
 
     def _advance_delayed(self, duties: np.ndarray, target: int) -> None:
         """`advance` with command latency: each wheel acts on the duties issued delays[j] s
-        earlier, so integrate piecewise between the instants a delayed command arrives (each
-        applied from the first physics step at or after it, as in `simulate_batch`)."""
+        earlier. Steps in which a delayed command arrives get the step's average duty (as in
+        `simulate_batch`); between arrivals the steps run in one call."""
+        from omnibench.effects.timing import step_average
+
         self._history.append((self.t, duties))
-        while True:
+        dt = self.dt
+        t_start = self.t
+        while self._steps < target:
             now = self.t
-            eff = np.zeros(4)
-            for j in range(4):
-                for t_c, u in self._history:
-                    if t_c + self._delays[j] <= now + 1e-9 * self.dt:
-                        eff[j] = u[j]
-            arrivals = [t_c + d for t_c, _ in self._history for d in self._delays if t_c + d > now + 1e-9 * self.dt]
-            nxt = min(target, min((math.ceil(a / self.dt - 1e-9) for a in arrivals), default=target))
-            nxt = max(nxt, self._steps + 1) if target > self._steps else self._steps
-            self._last = self._advance_steps(eff, nxt - self._steps)
-            if self._steps >= target:
-                break
+            arrivals = [t_c + d for t_c, _ in self._history for d in self._delays if t_c + d > now + 1e-9 * dt]
+            first = min((math.floor(a / dt + 1e-9) for a in arrivals), default=target)
+            if first > self._steps:  # no arrival before step `first`: hold the current duties
+                n = min(first, target) - self._steps
+                self._last = self._advance_steps(step_average(self._history, self._delays, now, now + dt), n)
+            else:  # an arrival inside this step: its average duty
+                self._last = self._advance_steps(step_average(self._history, self._delays, now, now + dt), 1)
+        if self.t == t_start:  # nothing to integrate: the signals at the current state
+            self._last = self._advance_steps(step_average(self._history, self._delays, self.t, self.t + dt), 0)
         # forget commands every wheel has moved past (keep the one each wheel still holds)
-        done = [k for k, (t_c, _) in enumerate(self._history) if t_c + self._delays.max() <= self.t]
+        done = [k for k, (t_c, _) in enumerate(self._history) if t_c + self._delays.max() <= self.t - dt]
         if done:
             del self._history[: done[-1]]
 
