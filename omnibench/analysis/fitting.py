@@ -276,7 +276,8 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
     """The paper's III.i least squares in the torque domain (a fast closed form; start values).
 
     Steady state upside down: tau_motor = (1 + c F_N)(a omega + b sign omega), with tau_motor =
-    eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a. Linear in
+    eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a (V_batt the
+    logged supply of the step where there is one, else the robot's). Linear in
     (a, b, a c, b c); returns a, b and c = (b c) / b (0 when a single load cannot separate it),
     plus `n` rows used."""
     df = sweep[np.abs(sweep["omega"]) > MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi]
@@ -288,7 +289,9 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
     if np.isfinite(cur).all():
         y = robot.eta * robot.k_t * cur
     else:
-        y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * robot.V_batt - robot.k_e * w) / robot.R_a
+        v = df["V_batt"].to_numpy(float) if "V_batt" in df else np.full(len(df), np.nan)
+        v = np.where(np.isfinite(v) & (v > 0), v, robot.V_batt)  # the logged supply where there is one
+        y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * v - robot.k_e * w) / robot.R_a
     s = np.sign(w)
     multi = np.ptp(F) > 1e-6 * max(1.0, float(np.max(F)))
     X = np.column_stack([w, s, F * w, F * s]) if multi else np.column_stack([w, s])

@@ -53,10 +53,11 @@ RUN_PROCEDURES = {
     "lateral_runs": "lateral",
     "energy_trajectories": "energy",
     "step_response": "step_response",
+    "random_duty": "step_response",  # a logged command trace replayed whole, like a step response
 }
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
-                 "current", "current_se", "n", "steady", "time"]
+                 "current", "current_se", "n", "steady", "time", "V_batt"]
 RUN_COLUMNS = (["run", "step", "u1", "u2", "u3", "u4", "duration", "t_total", "payload", "heading",
                 "measured_forward", "measured_left", "measured_se", "enc_forward", "enc_left"]
                + [f"dphi{j}" for j in range(1, 5)] + [f"w{j}" for j in range(1, 5)]
@@ -304,6 +305,34 @@ def run_key(run: Any, taken: set[str] | frozenset[str] = frozenset()) -> str:
     return key
 
 
+def supply_at_rest(samples: pd.DataFrame) -> float:
+    """The run's measured supply, V: median logged V_batt while every duty is 0 (no motor current,
+    so no sag through the battery's resistance), else over all samples; NaN if never logged."""
+    if not len(samples) or "V_batt" not in samples:
+        return float("nan")
+    v = samples["V_batt"].to_numpy(dtype=float)
+    u = samples[["u1", "u2", "u3", "u4"]].to_numpy(dtype=float)
+    ok = np.isfinite(v) & (v > 0)
+    rest = ok & np.all(np.nan_to_num(u) == 0, axis=1)
+    sel = rest if rest.any() else ok
+    return float(np.median(v[sel])) if sel.any() else float("nan")
+
+
+def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Where the robot was and how its firmware timed the commands (runs.tfm records both):
+    `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s)."""
+    out: dict[str, Any] = {}
+    if meta.get("mode") in ("ground", "upside_down"):
+        out["mode"] = meta["mode"]
+    ft = meta.get("firmware_timing")
+    if isinstance(ft, Mapping):
+        order = ft.get("command_order")
+        if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
+            out["command_order"] = tuple(int(w) for w in order)
+        out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
+    return out
+
+
 def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
@@ -318,6 +347,8 @@ def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
     info = {"procedure": run.procedure, "path": str(run.path), "status": run.status,
             "counts_per_rev": cpr, "source": run.metadata.get("source"), "imported": imported,
             "duty_timing": str(run.metadata.get("duty_timing") or ("from_sample" if imported else "interval_before"))}
+    info.update(_firmware_timing(run.metadata))
+    info["V_batt"] = supply_at_rest(run.samples)
     obs = Observations(runs={rid: info})
     steps = run.steps
     if not len(steps):
@@ -364,6 +395,7 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
         n = 0
         w_se = np.full(4, np.nan)
         i_se = np.full(4, np.nan)
+        v_batt = supply_at_rest(run.samples)
         if len(s) >= 4:
             t = s["t"].to_numpy(dtype=float)
             t_end = _num(st.get("t_end"))
@@ -401,7 +433,7 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
                          "F_N": mass * GRAVITY, "omega": w, "omega_se": float(w_se[j]),
                          "current": cur, "current_se": float(i_se[j]) if math.isfinite(cur) else float("nan"),
                          "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True,
-                         "time": _num(st.get("t_end"))})
+                         "time": _num(st.get("t_end")), "V_batt": v_batt})
     df = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
     return df
 
