@@ -21,6 +21,7 @@ import numpy as np
 from omnibench.analysis.observations import Observations
 
 PHYSICS_FREE = ("a", "b", "I_w")
+SWEEP_FREE = ("a", "b", "c")  # what the sweep measures (paper III.i)
 
 
 def physics_free(robot: Any) -> list[str]:
@@ -28,6 +29,19 @@ def physics_free(robot: Any) -> list[str]:
     from omnibench.effects import EFFECTS
 
     return list(PHYSICS_FREE) + [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
+
+
+@dataclass
+class PhysicsModel:
+    """A physics model as LORO refits it: the start robot, the parameters refitted per fold
+    (default `physics_free`), and whether each training run's supply is re-estimated
+    (sessions.py: a gain that differs between measurement days)."""
+
+    robot: Any
+    free: Sequence[str] | None = None
+    run_supplies: bool = False
+    #: the paper's order: friction (a, b) from the sweep alone, then the rest from the traces
+    staged: bool = True
 
 
 @dataclass
@@ -54,18 +68,37 @@ def _run_error(robot: Any, obs: Observations, run: str) -> float:
     return float(pred.nrmse.get(key, float("nan")))
 
 
-def _fit_physics(robot: Any, train: Observations, free: Sequence[str], max_nfev: int) -> Any:
+def _sweep_measures(name: str) -> bool:
+    """Friction the sweep measures: a, b, c, and the parameters of effects only a sweep reveals."""
+    from omnibench.effects import EFFECTS
+
+    if "." not in name:
+        return name in SWEEP_FREE
+    eff = EFFECTS.get(name.split(".")[0])
+    return eff is not None and tuple(eff.procedures) == ("upside_down_sweep",)
+
+
+def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) -> Any:
+    """The model's robot fitted to `train` (sweep and traces in the air)."""
     from omnibench.analysis.fitting import fit
+    from omnibench.analysis.sessions import fit_with_run_supplies
 
     procs = [p for p in ("sweep", "step_response") if len(train.table(p))]
-    return fit(robot, train, list(free), procedures=procs, max_nfev=max_nfev).robot
+    free = list(model.free or physics_free(model.robot))
+    robot = model.robot
+    if model.staged and len(train.sweep) and len(train.step_response):
+        sweep_free = [p for p in free if _sweep_measures(p)]
+        robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
+        free, procs = [p for p in free if p not in SWEEP_FREE], ["step_response"]
+    if model.run_supplies and procs == ["step_response"]:
+        return fit_with_run_supplies(robot, train, free, procs, max_nfev=max_nfev).fit.robot
+    return fit(robot, train, free, procedures=procs, max_nfev=max_nfev).robot
 
 
-def leave_one_run_out(models: dict[str, Any], obs: Observations, *, baselines: bool = True,
-                      free: dict[str, Sequence[str]] | None = None, max_nfev: int = 30,
-                      progress: Callable[[str], None] | None = None) -> list[RunError]:
-    """Leave-one-run-out NRMSE of each physics model (label -> robot) and, with `baselines`, of
-    the two black boxes, over every run of `obs` (module docstring)."""
+def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, baselines: bool = True,
+                      max_nfev: int = 30, progress: Callable[[str], None] | None = None) -> list[RunError]:
+    """Leave-one-run-out NRMSE of each physics model (label -> PhysicsModel) and, with
+    `baselines`, of the two black boxes, over every run of `obs` (module docstring)."""
     from omnibench.analysis import baseline
 
     say = progress or (lambda s: None)
@@ -81,10 +114,9 @@ def leave_one_run_out(models: dict[str, Any], obs: Observations, *, baselines: b
             continue
         train = obs.select(runs=train_runs)
         err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
-        for label, robot in models.items():
+        for label, model in models.items():
             say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
-            fitted = _fit_physics(robot, train, (free or {}).get(label) or physics_free(robot), max_nfev)
-            err.nrmse[label] = _run_error(fitted, obs, held)
+            err.nrmse[label] = _run_error(fit_physics(model, train, max_nfev), obs, held)
         held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []
         train_tr = baseline.traces(obs, train_runs)
         if baselines and held_tr and train_tr:

@@ -158,7 +158,7 @@ def library_effects() -> dict:
                example={"tau": 0.01, "tau_packet": PACKET_9600}, start={"tau": 0.005, "tau_packet": 0.002},
                procedures=("step_response",), variable="time since duty change", separates=order),
         Effect("per_wheel_latency", fit=("tau_1", "tau_2", "tau_3", "tau_4"),
-               example={"tau_1": 0.004, "tau_2": 0.008, "tau_3": 0.0125, "tau_4": 0.0167},
+               example={"tau_1": 0.015, "tau_2": 0.004, "tau_3": 0.010, "tau_4": 0.002},
                start={f"tau_{j}": 0.005 for j in range(1, 5)},
                procedures=("step_response",), variable="time since duty change",
                separates={"serial_command_latency": order["per_wheel_latency"]}),
