@@ -143,7 +143,7 @@ class Predictor:
                     idx.append(("current", j, k))
             vb = rows["V_batt"].to_numpy(dtype=float) if "V_batt" in rows else np.full(1, np.nan)
             g.add([0.0], U[None, :], SWEEP_HOLD, self.scenario(run, mode="upside_down", wheel_mass=masses),
-                  ("sweep", idx), float(np.nanmedian(vb)) if np.isfinite(vb).any() else float("nan"))
+                  ("sweep", idx), float(np.nanmedian(vb)) if np.isfinite(vb).any() else self.supply(run))
 
     def _build_timed(self, df: pd.DataFrame, proc: str) -> None:
         for _, r in df.iterrows():
