@@ -28,7 +28,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from omnibench.analysis.diagnosis import core_params, engine, structure
+from omnibench.analysis.diagnosis import core_params, engine, structure, transient
 from omnibench.analysis.observations import Observations
 from omnibench.effects.library import EFFECTS, Effect
 from omnibench.errors import UserError
@@ -145,7 +145,8 @@ class Diagnosis:
             for c in self.selected:
                 vals = ", ".join(f"{p.split('.')[-1]} = {c.values[p]:.4g} ± {c.se[p]:.2g}" for p in c.values)
                 if core_params.is_core(c.name):
-                    L.append(f"  + {core_params.describe(c.name, c.values[c.name], c.se[c.name], self.declared)}")
+                    L.append(f"  + {core_params.describe(c.name, c.values[c.name], c.se[c.name], self.declared)}"
+                             f" (final model: {self.final_fit.values.get(c.name, float('nan')):.4g})")
                 else:
                     L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
                 from omnibench.analysis.diagnosis.timing import wheel_order_note
@@ -199,7 +200,9 @@ def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 def _structure_of(problem: engine.Problem, fit: engine.ModelFit) -> tuple[list[structure.Finding], int]:
     r = fit.residual(problem)
     z = r * fit.weights(problem)
-    return structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    found, n = structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    extra = transient.findings(problem.table, r, z, problem.used, problem.group)  # command timing's signature
+    return found + extra, n + len(extra)
 
 
 def _score(findings: Sequence[structure.Finding], n_tests: int) -> float:
