@@ -69,13 +69,9 @@ def _run_error(robot: Any, obs: Observations, run: str) -> float:
 
 
 def _sweep_measures(name: str) -> bool:
-    """Friction the sweep measures: a, b, c, and the parameters of effects only a sweep reveals."""
-    from omnibench.effects import EFFECTS
-
-    if "." not in name:
-        return name in SWEEP_FREE
-    eff = EFFECTS.get(name.split(".")[0])
-    return eff is not None and tuple(eff.procedures) == ("upside_down_sweep",)
+    """Friction the sweep measures (a, b, c). Effects' parameters are fitted on the traces: a
+    one-direction sweep cannot see direction asymmetry, nor time or transients."""
+    return name in SWEEP_FREE
 
 
 def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) -> Any:
