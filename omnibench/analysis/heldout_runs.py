@@ -84,8 +84,11 @@ def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) ->
     robot = model.robot
     if model.staged and len(train.sweep) and len(train.step_response):
         sweep_free = [p for p in free if _sweep_measures(p)]
-        robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
+        if sweep_free:
+            robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
         free, procs = [p for p in free if p not in SWEEP_FREE], ["step_response"]
+    if not free:
+        return robot
     if model.run_supplies and procs == ["step_response"]:
         return fit_with_run_supplies(robot, train, free, procs, max_nfev=max_nfev).fit.robot
     return fit(robot, train, free, procedures=procs, max_nfev=max_nfev).robot

@@ -1,0 +1,55 @@
+"""Leave-one-run-out bookkeeping: stages of a diagnosis, trade-offs never silent, bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from types import SimpleNamespace
+
+from omnibench.analysis.diagnosis import loro
+from omnibench.analysis.heldout_runs import RunError, table
+
+
+def _diag(robot):
+    final = robot.replace(I_w=0.0175, effects={"per_wheel_latency": {f"tau_{j}": 0.004 * j for j in range(1, 5)},
+                                               "asymmetric_coulomb": {"db": -0.03}})
+    sel = [SimpleNamespace(name=n) for n in ("I_w", "per_wheel_latency", "asymmetric_coulomb")]
+    free = ["a", "b", "I_w"] + [f"per_wheel_latency.tau_{j}" for j in range(1, 5)] + ["asymmetric_coulomb.db"]
+    return SimpleNamespace(declared=robot, selected=sel, base_fit=SimpleNamespace(free=["a", "b"]),
+                           final_fit=SimpleNamespace(robot=final, free=free))
+
+
+def test_stages_add_one_addition_at_a_time(robot):
+    m = loro.stage_models(_diag(robot))
+    assert list(m) == ["declared", "declared + I_w", "+ per_wheel_latency", "+ asymmetric_coulomb"]
+    assert m["declared"].free == ["a", "b"] and not m["declared"].robot.effects
+    assert m["declared + I_w"].robot.I_w == 0.0175 and "I_w" in m["declared + I_w"].free
+    assert set(m["+ per_wheel_latency"].robot.effects) == {"per_wheel_latency"}
+    assert m["+ asymmetric_coulomb"].free[-1] == "asymmetric_coulomb.db"
+
+
+def test_an_addition_that_costs_a_run_is_reported_as_a_trade_off(robot, monkeypatch):
+    labels = ["declared", "declared + I_w", "+ per_wheel_latency", "+ asymmetric_coulomb"]
+    errs = [RunError("rc", "in-air trace", "wheel speed", dict(zip(labels, [0.30, 0.023, 0.0232, 0.026]))),
+            RunError("fast", "in-air trace", "wheel speed", dict(zip(labels, [0.40, 0.16, 0.127, 0.113])))]
+    monkeypatch.setattr(loro, "leave_one_run_out", lambda *a, **k: errs)
+    h = loro.heldout_runs(_diag(robot), obs=None)
+    assert [t["addition"] for t in h.tradeoffs] == ["asymmetric_coulomb"]  # +0.9 % on rc is noise
+    assert h.tradeoffs[0]["worse"] == {"rc": (0.0232, 0.026)} and "fast" in h.tradeoffs[0]["better"]
+    text = h.text()
+    assert "trade-off: asymmetric_coulomb makes rc 2.32 % -> 2.60 % worse" in text
+    assert "mean over in-air traces" in table(errs)
+
+
+def test_baseline_needs_two_runs(tmp_path):
+    from omnibench.runs import RunWriter
+
+    with RunWriter.create(tmp_path, "step_response", counts_per_rev=980) as w:
+        for k in range(5):
+            w.sample({"step": 0, "t": 0.02 * k, "u1": 0.5, "u2": 0.5, "u3": 0.5, "u4": 0.5,
+                      "enc1": k, "enc2": k, "enc3": k, "enc4": k})
+        w.step_complete({"step": 0, "duty": 0.5, "t_start": 0.0, "t_end": 0.08})
+    out = subprocess.run([sys.executable, "-m", "omnibench", "predict", "--model", "omnibench/model/omnibot.toml",
+                          str(w.path), "--baseline"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "at least two runs" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
