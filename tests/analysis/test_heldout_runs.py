@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
+from pathlib import Path
 from types import SimpleNamespace
+
+import pytest
 
 from omnibench.analysis.diagnosis import loro
 from omnibench.analysis.heldout_runs import RunError, table
@@ -41,7 +42,7 @@ def test_an_addition_that_costs_a_run_is_reported_as_a_trade_off(robot, monkeypa
     assert "mean over in-air traces" in table(errs)
 
 
-def test_baseline_needs_two_runs(tmp_path):
+def test_baseline_needs_two_runs(tmp_path, capsys):
     from omnibench.runs import RunWriter
 
     with RunWriter.create(tmp_path, "step_response", counts_per_rev=980) as w:
@@ -49,7 +50,10 @@ def test_baseline_needs_two_runs(tmp_path):
             w.sample({"step": 0, "t": 0.02 * k, "u1": 0.5, "u2": 0.5, "u3": 0.5, "u4": 0.5,
                       "enc1": k, "enc2": k, "enc3": k, "enc4": k})
         w.step_complete({"step": 0, "duty": 0.5, "t_start": 0.0, "t_end": 0.08})
-    out = subprocess.run([sys.executable, "-m", "omnibench", "predict", "--model", "omnibench/model/omnibot.toml",
-                          str(w.path), "--baseline"], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2 and "at least two runs" in out.stderr
-    assert len(out.stderr.strip().splitlines()) == 1
+    from omnibench.cli import main
+
+    model = Path(__file__).resolve().parents[2] / "omnibench" / "model" / "omnibot.toml"
+    with pytest.raises(SystemExit) as exit_:
+        main(["predict", "--model", str(model), str(w.path), "--baseline"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "at least two runs" in err and len(err.strip().splitlines()) == 1
