@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from omnibench.analysis.diagnosis import diagnose
-    from omnibench.analysis.heldout_runs import PhysicsModel, leave_one_run_out, table
+    from omnibench.analysis.diagnosis.loro import heldout_runs
     from omnibench.analysis.observations import Observations
     from omnibench.model import default_robot
     from omnibench.runs.tfm import import_tfm
@@ -61,20 +61,15 @@ def main(argv: list[str] | None = None) -> int:
         t_diag = time.time() - t0
         print(d.text())
         print(f"(diagnose: {t_diag:.0f} s)\n")
-        extended = d.extended
-        models = {
-            "declared + I_w": PhysicsModel(robot),
-            "diagnosed": PhysicsModel(extended, free=["a", "b", "I_w"] + [p for p in d.final_fit.free if "." in p]),
-        }
         t0 = time.time()
-        errs = leave_one_run_out(models, obs, progress=lambda s: say(f"loro: {s}"))
-        for e in errs:
+        held = heldout_runs(d, obs, progress=lambda s: say(f"loro: {s}"))
+        for e in held.errors:
             e.run = sources.get(e.run, names.get(e.run, e.run))
-        print(table(errs))
+        print(held.text())
         print(f"(leave-one-run-out: {time.time() - t0:.0f} s)")
         if args.json:
-            Path(args.json).write_text(json.dumps({"diagnosis": d.to_json(), "leave_one_run_out": [
-                {"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in errs]}, indent=2))
+            Path(args.json).write_text(json.dumps({"diagnosis": d.to_json(), "leave_one_run_out": held.to_json()},
+                                                  indent=2))
     return 0
 
 

@@ -91,7 +91,12 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         held = heldout_runs(diag, obs, progress=progress)
     written: dict[str, object] = {}
     if out is not None:
-        written["model"] = str(write_model(diag, out))
+        if held is not None and held.tradeoffs:
+            from omnibench.analysis.diagnosis.loro import trimmed
+
+            written["model"] = str(write_model(trimmed(diag, held, obs), out))
+        else:
+            written["model"] = str(write_model(diag, out))
     if plots is not None:
         written["plots"] = [str(p) for p in write_plots(diag, plots)]
     if as_json:

@@ -31,14 +31,17 @@ def test_stages_add_one_addition_at_a_time(robot):
 
 def test_an_addition_that_costs_a_run_is_reported_as_a_trade_off(robot, monkeypatch):
     labels = ["declared", "declared + I_w", "+ per_wheel_latency", "+ asymmetric_coulomb"]
-    errs = [RunError("rc", "in-air trace", "wheel speed", dict(zip(labels, [0.30, 0.023, 0.0232, 0.026]))),
+    errs = [RunError("rc", "in-air trace", "wheel speed", dict(zip(labels, [0.025, 0.023, 0.0252, 0.026]))),
             RunError("fast", "in-air trace", "wheel speed", dict(zip(labels, [0.40, 0.16, 0.127, 0.113])))]
     monkeypatch.setattr(loro, "leave_one_run_out", lambda *a, **k: errs)
     h = loro.heldout_runs(_diag(robot), obs=None)
-    assert [t["addition"] for t in h.tradeoffs] == ["asymmetric_coulomb"]  # +0.9 % on rc is noise
-    assert h.tradeoffs[0]["worse"] == {"rc": (0.0232, 0.026)} and "fast" in h.tradeoffs[0]["better"]
+    # compared with the declared model: +0.8 % on rc is noise, +4 % is a trade-off
+    assert [t["addition"] for t in h.tradeoffs] == ["asymmetric_coulomb"]
+    assert h.tradeoffs[0]["worse"] == {"rc": (0.025, 0.026)} and "fast" in h.tradeoffs[0]["better"]
+    assert h.stages[h.accepted] == "+ per_wheel_latency"
     text = h.text()
-    assert "trade-off: asymmetric_coulomb makes rc 2.32 % -> 2.60 % worse" in text
+    assert "trade-off: asymmetric_coulomb makes rc 2.50 % -> 2.60 % worse" in text
+    assert "accepted on held-out runs: I_w, per_wheel_latency" in text
     assert "mean over in-air traces" in table(errs)
 
 

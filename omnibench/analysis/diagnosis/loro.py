@@ -4,8 +4,10 @@ after each addition, and every addition that makes some run worse reported as a 
 Stage k is the declared model plus the first k additions (library effects and core-parameter
 re-estimates, in the order diagnose accepted them). Each stage is refitted with every run but
 one (analysis/heldout_runs.py: a, b on the sweep, the rest on the traces) and predicts that
-run. An addition whose stage predicts some run worse than the stage before it by more than
-TOLERANCE (relative) is a trade-off: reported with the runs it costs, never passed over silently.
+run. An addition whose stage predicts some run worse than the declared model by more than
+TOLERANCE (relative; compared with the declared model, as diagnose's own held-out check, so
+small losses cannot pile up) is a trade-off: reported with the runs it costs and what it gains,
+and it and every later addition are left out of the model `--out` writes (`accepted`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,12 @@ class HeldOutRuns:
     stages: list[str]
     errors: list[RunError]
     tradeoffs: list[dict[str, Any]] = field(default_factory=list)
+    accepted: int = 0  # additions before the first trade-off
+
+    @property
+    def additions(self) -> list[str]:
+        """The additions in the order of the stages."""
+        return [label.lstrip("+ ").split(" + ")[-1] for label in self.stages[1:]]
 
     def text(self) -> str:
         from omnibench.analysis.heldout_runs import table
@@ -37,11 +45,16 @@ class HeldOutRuns:
             lines.append(f"trade-off: {t['addition']} makes {worse} worse"
                          + (f" (while {better} improve)" if better else ""))
         if not self.tradeoffs:
-            lines.append(f"no addition makes any run's held-out error worse (beyond {100 * TOLERANCE:.0f} %)")
+            lines.append(f"no addition makes any run's held-out error worse than the declared model's "
+                         f"(beyond {100 * TOLERANCE:.0f} %)")
+        else:
+            kept = ", ".join(self.additions[:self.accepted]) or "nothing"
+            lines.append(f"accepted on held-out runs: {kept} (trade-offs are reported, not added to the written model)")
         return "\n".join(lines)
 
     def to_json(self) -> dict[str, Any]:
         return {"stages": self.stages, "tolerance": TOLERANCE, "tradeoffs": self.tradeoffs,
+                "accepted": self.additions[:self.accepted],
                 "runs": [{"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in self.errors]}
 
 
@@ -75,10 +88,11 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
     errors = leave_one_run_out(models, obs, baselines=True, progress=progress)
     labels = list(models)
     trade = []
-    for prev, cur in zip(labels, labels[1:]):
+    accepted = len(labels) - 1
+    for k, (prev, cur) in enumerate(zip(labels, labels[1:])):
         worse, better = {}, {}
         for e in errors:
-            a, b = e.nrmse.get(prev), e.nrmse.get(cur)
+            a, b = e.nrmse.get(labels[0]), e.nrmse.get(cur)
             if a is None or b is None:
                 continue
             if b > (1 + TOLERANCE) * a:
@@ -87,4 +101,18 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
                 better[e.run] = (a, b)
         if worse:
             trade.append({"addition": cur.lstrip("+ ").split(" + ")[-1], "worse": worse, "better": better})
-    return HeldOutRuns(labels, errors, trade)
+            accepted = min(accepted, k)
+    return HeldOutRuns(labels, errors, trade, accepted)
+
+
+def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
+    """`diag` without the additions from the first trade-off on: its accepted stage refitted to
+    every run (for `--out`)."""
+    from dataclasses import replace
+
+    from omnibench.analysis.heldout_runs import fit_physics
+
+    if held.accepted >= len(diag.selected):
+        return diag
+    model = stage_models(diag)[held.stages[held.accepted]]
+    return replace(diag, selected=diag.selected[:held.accepted], extended=fit_physics(model, obs))
