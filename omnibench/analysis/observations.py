@@ -19,7 +19,9 @@ the simulation-based fits replay:
 ``energy`` (IV; one row per trajectory)
     run, step, trajectory, duration (s), t_total (s), payload (kg), measured_J (J, trapezoid of
     V_batt I_batt over the step; NaN if no current was logged), has_current.
-``step_response`` (imported square waves, wheels in the air; one row per constant-duty step)
+``step_response`` (imported traces replayed whole: square waves in the air or on the floor, the
+    random-duty RC log; one row per constant-duty step; the run's `mode`, firmware timing and
+    measured supply are in ``runs``)
     run, step, duty, t_start, t_end (s, board time), n.
 
 ``traces[(run, step)]``: the step's samples as a DataFrame with t (s since the step start; for
