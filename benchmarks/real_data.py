@@ -63,8 +63,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"(diagnose: {t_diag:.0f} s)\n")
         t0 = time.time()
         held = heldout_runs(d, obs, progress=lambda s: say(f"loro: {s}"))
+        name = lambda rid: sources.get(rid, names.get(rid, rid))  # noqa: E731
         for e in held.errors:
-            e.run = sources.get(e.run, names.get(e.run, e.run))
+            e.run = name(e.run)
+        for t in held.tradeoffs:
+            t["worse"] = {name(r): v for r, v in t["worse"].items()}
+            t["better"] = {name(r): v for r, v in t["better"].items()}
         print(held.text())
         print(f"(leave-one-run-out: {time.time() - t0:.0f} s)")
         if args.json:
