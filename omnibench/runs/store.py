@@ -24,6 +24,7 @@ import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,7 +128,8 @@ def _fmt(v: Any) -> str:
 
 
 def new_run_dir(out: Path, procedure: str) -> Path:
-    """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created)."""
+    """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created; an imported run
+    passes its source file's name instead of the procedure)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
@@ -140,6 +142,12 @@ def new_run_dir(out: Path, procedure: str) -> Path:
         except FileExistsError:
             n += 1
             path = Path(f"{base}-{n}")
+
+
+def unique_run_id(path: Path) -> str:
+    """The run's id: its directory name plus 8 random hex digits, so two runs started in the
+    same second in two folders never share an id (the analysis merges runs by id)."""
+    return f"{Path(path).name}-{uuid.uuid4().hex[:8]}"
 
 
 class RunWriter:
@@ -183,10 +191,12 @@ class RunWriter:
         port: str | None = None,
         counts_per_rev: float | None = None,
         extra: Mapping[str, Any] | None = None,
+        name: str | None = None,
     ) -> "RunWriter":
-        """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`)."""
+        """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`),
+        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure)."""
         if run_dir is None:
-            path = new_run_dir(Path(out), procedure)
+            path = new_run_dir(Path(out), name or procedure)
         else:
             path = Path(run_dir)
             path.mkdir(parents=True, exist_ok=True)
@@ -199,7 +209,7 @@ class RunWriter:
         meta: dict[str, Any] = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
-            "run_id": path.name,
+            "run_id": unique_run_id(path),
             "procedure": procedure,
             "procedure_file": procedure_file,
             "procedure_text": procedure_text,

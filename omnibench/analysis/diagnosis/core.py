@@ -28,7 +28,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from omnibench.analysis.diagnosis import engine, structure
+from omnibench.analysis.diagnosis import core_params, engine, structure, transient
 from omnibench.analysis.observations import Observations
 from omnibench.effects.library import EFFECTS, Effect
 from omnibench.errors import UserError
@@ -104,9 +104,12 @@ class Diagnosis:
 
         sel = []
         for c in self.selected:
-            eff = EFFECTS[c.name]
+            eff = _spec(c.name)
             units = {p.name: p.unit for p in eff.term.params}
-            sel.append({"effect": c.name, "title": eff.term.title,
+            from omnibench.analysis.diagnosis.timing import wheel_order_note
+
+            sel.append({"effect": c.name, "title": eff.term.title, "kind": _kind(c.name),
+                        "note": wheel_order_note(c.name, c.values, c.se) or None,
                         "parameters": {p: {"value": f(c.values[p]), "se": f(c.se[p]), "unit": units[p.split(".")[-1]]}
                                        for p in c.values},
                         "evidence": {**c.evidence(),
@@ -141,7 +144,15 @@ class Diagnosis:
             L.append("Added:")
             for c in self.selected:
                 vals = ", ".join(f"{p.split('.')[-1]} = {c.values[p]:.4g} ± {c.se[p]:.2g}" for p in c.values)
-                L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
+                if core_params.is_core(c.name):
+                    L.append(f"  + {core_params.describe(c.name, c.values[c.name], c.se[c.name], self.declared)}"
+                             f" (final model: {self.final_fit.values.get(c.name, float('nan')):.4g})")
+                else:
+                    L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
+                from omnibench.analysis.diagnosis.timing import wheel_order_note
+
+                if wheel_order_note(c.name, c.values, c.se):
+                    L.append(f"    {wheel_order_note(c.name, c.values, c.se)}")
                 L.append(f"    evidence: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e}; AIC -{c.aic_drop:.1f}; "
                          f"held-out weighted error -{c.cv_gain:.1f}; structure {c.structure_before:.0f} -> {c.structure_after:.0f}")
                 if c.name in self.exposed_by:
@@ -173,6 +184,15 @@ class Diagnosis:
         return "\n".join(L)
 
 
+def _spec(name: str) -> Any:
+    """A library effect, or a core parameter offered for re-estimation (core_params.py)."""
+    return core_params.get(name) if core_params.is_core(name) else EFFECTS[name]
+
+
+def _kind(name: str) -> str:
+    return "core parameter re-estimated" if core_params.is_core(name) else "library effect"
+
+
 def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     return {p: {"nrmse": (v["nrmse"] if math.isfinite(v["nrmse"]) else None), "signals": v["signals"]} for p, v in t.items()}
 
@@ -180,7 +200,9 @@ def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 def _structure_of(problem: engine.Problem, fit: engine.ModelFit) -> tuple[list[structure.Finding], int]:
     r = fit.residual(problem)
     z = r * fit.weights(problem)
-    return structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    found, n = structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    extra = transient.findings(problem.table, r, z, problem.used, problem.group)  # command timing's signature
+    return found + extra, n + len(extra)
 
 
 def _score(findings: Sequence[structure.Finding], n_tests: int) -> float:
@@ -252,17 +274,35 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     rejected: list[Candidate] = []
     ambiguous: list[dict[str, Any]] = []
     exposed: dict[str, structure.Finding] = {}
+    def assess(c: Candidate, e: Any, cf: engine.ModelFit) -> bool:
+        """Fill a refitted candidate's evidence and judge it (library effects and core parameters alike)."""
+        c.lr, c.p = engine.lr_test(current, cf, e.n_params)
+        c.aic_drop = c.lr - 2 * e.n_params
+        w_common = current.weights(problem)
+        ho0 = engine.heldout_residuals(problem, current, fold)
+        ho1 = engine.heldout_residuals(problem, cf, fold, w_common)
+        c.cv_gain = engine.cv_score(problem, ho0, w_common) - engine.cv_score(problem, ho1, w_common)
+        # the per-procedure errors as they will be reported (each model with its own weights)
+        e1 = engine.error_table(problem, engine.heldout_residuals(problem, cf, fold))
+        # compared with the declared model, so small losses cannot pile up round after round
+        c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err
+                   if p in e1 and e1[p]["nrmse"] > (1 + WORSE) * base_err[p]["nrmse"]}
+        st, nt = _structure_of(problem, cf)
+        c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
+        c.struct = (st, nt)
+        return _judge(c, e, alpha / m, (cur_struct, cur_ntests))
+
     for rnd in range(1, max_effects + 1):
-        if not pool:
+        if not pool and not core_params.candidates(problem, current):
             break
         say(f"round {rnd}: screening {len(pool)} candidate effects")
-        scr = engine.screen(problem, current, pool)
-        m = len(pool)
+        scr = engine.screen(problem, current, pool) if pool else None
+        m = len(pool) + len(core_params.candidates(problem, current))
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
         tried: list[Candidate] = []
         passing: list[Candidate] = []
-        best_ratio = max(scr.approx_lr[e.name] / thr[e.name] for e in pool)
+        best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
@@ -281,21 +321,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                 c.fitted, c.fit = True, cf
                 c.values = {p: cf.values[p] for p in cf.free if p.startswith(e.name + ".")}
                 c.se = {p: cf.se[p] for p in c.values}
-                c.lr, c.p = engine.lr_test(current, cf, e.n_params)
-                c.aic_drop = c.lr - 2 * e.n_params
-                w_common = current.weights(problem)
-                ho0 = engine.heldout_residuals(problem, current, fold)
-                ho1 = engine.heldout_residuals(problem, cf, fold, w_common)
-                c.cv_gain = engine.cv_score(problem, ho0, w_common) - engine.cv_score(problem, ho1, w_common)
-                # the per-procedure errors as they will be reported (each model with its own weights)
-                e1 = engine.error_table(problem, engine.heldout_residuals(problem, cf, fold))
-                # compared with the declared model, so small losses cannot pile up round after round
-                c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err
-                           if p in e1 and e1[p]["nrmse"] > (1 + WORSE) * base_err[p]["nrmse"]}
-                st, nt = _structure_of(problem, cf)
-                c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
-                c.struct = (st, nt)
-                if _judge(c, e, alpha / m, (cur_struct, cur_ntests)):
+                if assess(c, e, cf):
                     passing.append(c)
             else:
                 c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, far below the {thr[e.name]:.1f} needed"
@@ -308,6 +334,11 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                     c.reason = ("not testable with these data (what it would change, a change of the "
                                 f"fitted parameters changes alike; shows in {', '.join(e.procedures)})")
             tried.append(c)
+        # a declared parameter the data say is wrong competes on the same evidence (core_params.py)
+        core_pass, core_tried = core_params.round_candidates(problem, current, rnd, assess=assess, make=Candidate,
+                                                             say=say)
+        passing += core_pass
+        tried += core_tried
         if not passing:
             rejected += tried
             break
@@ -317,7 +348,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             diff = best.aic_drop - c.aic_drop
             if diff < AMBIGUOUS:
                 ambiguous.append({"chosen": best.name, "alternative": c.name, "aic_difference": float(diff),
-                                  "experiment": separating_experiment(EFFECTS[best.name], EFFECTS[c.name])})
+                                  "experiment": separating_experiment(_spec(best.name), _spec(c.name))})
                 c.reason = f"fits almost as well as {best.name} (AIC difference {diff:.1f}): not separable with these data"
             else:
                 c.reason = f"significant, but {best.name} explains the data better (AIC difference {diff:.1f})"
