@@ -1,0 +1,90 @@
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <util/atomic.h>
+#include "clock.h"
+
+#define TICKS_PER_MS 2000u            /* Timer1 at F_CPU/8 = 2 MHz */
+#define ARM_WITHIN_US 30000L          /* arm the compare less than one overflow (32768 µs) ahead */
+
+static volatile uint32_t overflows;   /* each one is 32768 µs */
+static volatile uint8_t ticks;
+static volatile uint8_t pending;      /* a sample is scheduled but not armed yet */
+static volatile uint32_t sample_at;
+
+void clock_init(void) {
+    TCCR1A = 0;
+    TCCR1B = _BV(CS11);
+    OCR1B = TICKS_PER_MS;
+    TIFR1 = _BV(TOV1) | _BV(OCF1A) | _BV(OCF1B);
+    TIMSK1 = _BV(TOIE1) | _BV(OCIE1B);
+}
+
+static uint32_t now_locked(void) {
+    uint16_t t = TCNT1;
+    uint32_t o = overflows;
+    if ((TIFR1 & _BV(TOV1)) && t < 0x8000)
+        o++;
+    return (o << 15) + (t >> 1);
+}
+
+uint32_t clock_us(void) {
+    uint32_t t;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = now_locked(); }
+    return t;
+}
+
+uint8_t clock_take_tick(void) {
+    uint8_t t;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        t = ticks;
+        if (t) ticks--;
+    }
+    return t != 0;
+}
+
+/* Interrupts off. Arm compare A once the instant is within reach; fire at once if it passed. */
+static void try_arm(void) {
+    if (!pending)
+        return;
+    uint32_t now = now_locked();
+    int32_t d = (int32_t)(sample_at - now);
+    if (d <= 8) {
+        pending = 0;
+        clock_sample_fired(d < 0 ? now : sample_at);
+    } else if (d < ARM_WITHIN_US) {
+        pending = 0;
+        OCR1A = (uint16_t)(sample_at << 1);
+        TIFR1 = _BV(OCF1A);
+        TIMSK1 |= _BV(OCIE1A);
+    }
+}
+
+void clock_schedule(uint32_t at_us) {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        TIMSK1 &= (uint8_t)~_BV(OCIE1A);
+        sample_at = at_us;
+        pending = 1;
+        try_arm();
+    }
+}
+
+void clock_cancel(void) {
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        TIMSK1 &= (uint8_t)~_BV(OCIE1A);
+        pending = 0;
+    }
+}
+
+ISR(TIMER1_OVF_vect) { overflows++; }
+
+ISR(TIMER1_COMPB_vect) {
+    OCR1B += TICKS_PER_MS;
+    if (ticks < 255)
+        ticks++;
+    try_arm();
+}
+
+ISR(TIMER1_COMPA_vect) {
+    TIMSK1 &= (uint8_t)~_BV(OCIE1A);
+    clock_sample_fired(sample_at);
+}
