@@ -28,10 +28,17 @@ void analog_init(void) {
     start(0);
 }
 
+/* One round of conversions per call (every 1 ms tick): 104 µs per channel. */
+void analog_start_round(void) {
+    if (!(ADCSRA & _BV(ADSC)) && idx == 0)
+        start(0);
+}
+
 ISR(ADC_vect) {
     raw[idx] = ADC;
     idx = (uint8_t)(idx + 1 == N_CH ? 0 : idx + 1);
-    start(idx);
+    if (idx)
+        start(idx);
 }
 
 static int32_t pin_mv(uint8_t i) {

@@ -77,10 +77,12 @@ int main(void) {
         wdt_reset();
         uint8_t buf[32];
         uint8_t n = host_uart_read(buf, sizeof buf);
+        uint8_t tick = 0;
         if (n)
             core_rx(&core, buf, n, clock_us());
-        core_poll(&core, clock_us());
         while (clock_take_tick()) {
+            tick = 1;
+            analog_start_round();
             if (++ms % SABERTOOTH_REFRESH_MS == 0)
                 sabertooth_refresh();
             if (!rebauded && ms >= SABERTOOTH_REBAUD_MS) {
@@ -88,6 +90,10 @@ int main(void) {
                 sabertooth_baud();
             }
         }
+        /* the core's own work (faults, watchdog, telemetry) at each 1 ms tick, sample and host
+           frame; other wake-ups (a byte sent, a conversion done) go straight back to sleep */
+        if (n || tick || hal_avr_sample_ready())
+            core_poll(&core, clock_us());
         cli();
         if (!host_uart_available() && !hal_avr_sample_ready()) {
             sleep_enable();  /* idle: every interrupt (byte, tick, sample) wakes the loop */

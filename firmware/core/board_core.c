@@ -86,6 +86,7 @@ static void latch(core_t *c, uint8_t bits) {
 }
 
 void core_boot(core_t *c, const core_identity_t *id, uint32_t boot_id, uint32_t now_us) {
+    crc_init();
     memset(c, 0, sizeof *c);
     c->id = *id;
     c->boot_id = boot_id ? boot_id : 1;

@@ -23,6 +23,8 @@ typedef uint16_t crc_t;
 typedef uint32_t crc_t;
 #endif
 
+/* Build the lookup table (once, before the first crc_compute). */
+void crc_init(void);
 /* CRC of n bytes (init, update, final in one go). */
 crc_t crc_compute(const uint8_t *data, uint8_t n);
 

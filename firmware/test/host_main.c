@@ -59,6 +59,7 @@ int main(void) {
     static const core_identity_t id = {{0, 1, 0}, 0x2019, 980, 500, 0};
     char line[4096], arg[4096];
     uint8_t buf[2048];
+    crc_init();
     while (fgets(line, sizeof line, stdin)) {
         unsigned long a = 0, b = 0;
         arg[0] = 0;
