@@ -27,9 +27,17 @@ static uint32_t now_locked(void) {
     return (o << 15) + (t >> 1);
 }
 
+/* Board time never steps back: a read that lands just before an overflow is counted can
+   look 32 ms early (and simavr 1.6 shows such steps); the last value read is a floor. */
 uint32_t clock_us(void) {
+    static uint32_t last;
     uint32_t t;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { t = now_locked(); }
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        t = now_locked();
+        if ((int32_t)(t - last) < 0)
+            t = last;
+        last = t;
+    }
     return t;
 }
 

@@ -228,7 +228,7 @@ void core_poll(core_t *c, uint32_t now_us) {
         latch(c, fresh);
         send_event(c, EVENT_FAULT, fresh, now_us);
     }
-    if (core_running(c) && now_us - c->last_rx_us >= c->watchdog_us) {
+    if (core_running(c) && (int32_t)(now_us - c->last_rx_us) >= (int32_t)c->watchdog_us) {
         uint32_t silence_ms = (now_us - c->last_rx_us) / 1000UL;
         latch(c, FAULTS_WATCHDOG);
         send_event(c, EVENT_WATCHDOG, silence_ms, now_us);

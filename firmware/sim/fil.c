@@ -50,7 +50,7 @@ typedef struct {
     /* host -> board */
     uint8_t in[RING];
     uint32_t in_head, in_tail;
-    int xoff;
+    int feeding;
     /* board -> host */
     uint8_t out[RING];
     uint64_t out_cycle[RING];
@@ -82,25 +82,26 @@ static void quiet_logger(avr_t *avr, const int level, const char *fmt, va_list a
 }
 
 /* ------------------------------------------------------------------ UART0: host link */
-static void push_host_bytes(fil_t *f) {
-    avr_irq_t *in = avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-    while (!f->xoff && f->in_tail != f->in_head) {
-        uint8_t b = f->in[f->in_tail % RING];
-        f->in_tail++;
-        avr_raise_irq(in, b);
+/* Host bytes enter the chip one per character time (10 bits at 115200 baud), as on the
+   wire; simavr's receive FIFO then never holds more than one, so no flow control is needed. */
+#define HOST_BYTE_CYCLES ((avr_cycle_count_t)(F_CPU * 10 / 115200))
+
+static avr_cycle_count_t feed_host_byte(avr_t *avr, avr_cycle_count_t when, void *param) {
+    fil_t *f = param;
+    if (f->in_tail == f->in_head) {
+        f->feeding = 0;
+        return 0;
     }
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), f->in[f->in_tail % RING]);
+    f->in_tail++;
+    return when + HOST_BYTE_CYCLES;
 }
 
-static void uart0_xon(struct avr_irq_t *irq, uint32_t v, void *p) {
-    (void)irq; (void)v;
-    fil_t *f = p;
-    f->xoff = 0;
-    push_host_bytes(f);
-}
-
-static void uart0_xoff(struct avr_irq_t *irq, uint32_t v, void *p) {
-    (void)irq; (void)v;
-    ((fil_t *)p)->xoff = 1;
+static void push_host_bytes(fil_t *f) {
+    if (!f->feeding && f->in_tail != f->in_head) {
+        f->feeding = 1;
+        avr_cycle_timer_register(f->avr, 1, feed_host_byte, f);
+    }
 }
 
 static void uart0_out(struct avr_irq_t *irq, uint32_t v, void *p) {
@@ -260,8 +261,6 @@ fil_t *fil_open(const char *elf, char *err, int errlen) {
         avr_ioctl(f->avr, AVR_IOCTL_UART_SET_FLAGS('0' + u), &fl);
     }
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart0_out, f);
-    avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart0_xon, f);
-    avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart0_xoff, f);
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('1'), UART_IRQ_OUTPUT), uart1_out, f);
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, f);
     {
