@@ -28,7 +28,7 @@ void analog_init(void) {
     start(0);
 }
 
-/* One round of conversions per call (every 1 ms tick): 104 µs per channel. */
+/* One round of conversions per call (every millisecond): 104 µs per channel. */
 void analog_start_round(void) {
     if (!(ADCSRA & _BV(ADSC)) && idx == 0)
         start(0);

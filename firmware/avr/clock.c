@@ -3,7 +3,7 @@
 #include <util/atomic.h>
 #include "clock.h"
 
-#define TICKS_PER_MS 2000u            /* Timer1 at F_CPU/8 = 2 MHz */
+#define TICK_COUNTS 1000u             /* Timer1 at F_CPU/8 = 2 MHz: a tick every 500 µs */
 #define ARM_WITHIN_US 30000L          /* arm the compare less than one overflow (32768 µs) ahead */
 
 static volatile uint32_t overflows;   /* each one is 32768 µs */
@@ -14,7 +14,7 @@ static volatile uint32_t sample_at;
 void clock_init(void) {
     TCCR1A = 0;
     TCCR1B = _BV(CS11);
-    OCR1B = TICKS_PER_MS;
+    OCR1B = TICK_COUNTS;
     TIFR1 = _BV(TOV1) | _BV(OCF1A) | _BV(OCF1B);
     TIMSK1 = _BV(TOIE1) | _BV(OCIE1B);
 }
@@ -86,7 +86,7 @@ void clock_cancel(void) {
 ISR(TIMER1_OVF_vect) { overflows++; }
 
 ISR(TIMER1_COMPB_vect) {
-    OCR1B += TICKS_PER_MS;
+    OCR1B += TICK_COUNTS;
     if (ticks < 255)
         ticks++;
     try_arm();

@@ -71,7 +71,7 @@ int main(void) {
     uint32_t boot_id = draw_boot_id();
     core_boot(&core, &id, boot_id, clock_us());
     wdt_enable(WDTO_120MS);  /* a hung firmware resets (and the drivers' timeout stops them) */
-    uint16_t ms = 0;
+    uint32_t ticks = 0;
     uint8_t rebauded = 0;
     for (;;) {
         wdt_reset();
@@ -82,15 +82,18 @@ int main(void) {
             core_rx(&core, buf, n, clock_us());
         while (clock_take_tick()) {
             tick = 1;
-            analog_start_round();
-            if (++ms % SABERTOOTH_REFRESH_MS == 0)
+            ticks++;
+            if (ticks % (1000u / CLOCK_TICK_US) == 0)
+                analog_start_round();  /* every millisecond */
+            if (ticks % (SABERTOOTH_REFRESH_MS * 1000UL / CLOCK_TICK_US) == 0)
                 sabertooth_refresh();
-            if (!rebauded && ms >= SABERTOOTH_REBAUD_MS) {
+            if (!rebauded && ticks >= SABERTOOTH_REBAUD_MS * 1000UL / CLOCK_TICK_US) {
                 rebauded = 1;
                 sabertooth_baud();
             }
         }
-        /* the core's own work (faults, watchdog, telemetry) at each 1 ms tick, sample and host
+        /* the core's own work (faults, watchdog, telemetry) at each 500 µs tick (the watchdog's
+           resolution: its stop packets then leave within timeout + 0.5 ms + 4 packets), sample and host
            frame; other wake-ups (a byte sent, a conversion done) go straight back to sleep */
         if (n || tick || hal_avr_sample_ready())
             core_poll(&core, clock_us());
