@@ -82,7 +82,7 @@ def test_silent_host_gets_stop_packets_within_watchdog_plus_one_period(fil_elf) 
         t_last = rig.clock_us * 1e-6 + len(wire) * 10 / 115200  # the host's last frame is in; then silence
         rig.advance_to(rig.clock_us + 300_000)
         cmds = _wheel_commands(rig)
-        period, packet = 1 / 200, 4 * 11 / 38400  # 4-byte packet of 11-bit characters (simavr's UART)
+        period, packet = 1 / 200, 1.15e-3  # one 4-byte packet on simavr's USART1 at 38400 baud
         firsts = []
         for w in range(4):
             running = [t for t, v in cmds[w] if v != 0]
