@@ -29,14 +29,22 @@ C_TYPES = {
 HEADER = [("msg_id", "u8"), ("seq", "u16")]  # never changes between versions (docs/protocol.md)
 
 
+def load(path: Path) -> dict:
+    """The description as a dict; a clear one-line exit if it is not valid TOML."""
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        sys.exit(f"gen_protocol: {path}: {exc}")
+
+
 def pick_description(path: Path) -> Path:
     """The .toml itself, or the highest-version description in a folder."""
     if path.is_file():
         return path
     found = []
     for p in sorted(path.glob("*.toml")):
-        with p.open("rb") as f:
-            found.append((int(tomllib.load(f)["protocol"]["version"]), p))
+        found.append((int(load(p)["protocol"]["version"]), p))
     if not found:
         sys.exit(f"gen_protocol: no protocol description (*.toml) in {path}")
     return max(found)[1]
@@ -142,8 +150,7 @@ def test_helpers(messages: list[dict]) -> list[str]:
 
 
 def generate(desc_path: Path) -> str:
-    with desc_path.open("rb") as f:
-        d = tomllib.load(f)
+    d = load(desc_path)
     header = [(h["name"], h["type"]) for h in d["framing"]["header"]]
     if header != HEADER:
         sys.exit(f"gen_protocol: {desc_path.name}: header must be {HEADER} (docs/protocol.md, Versioning)")
@@ -219,7 +226,7 @@ def main(argv: list[str]) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.exists() or out.read_text() != text:  # keep the timestamp: no needless rebuilds
         out.write_text(text)
-    print(f"gen_protocol: {out} from {src.name} (version {tomllib.loads(src.read_text())['protocol']['version']})")
+    print(f"gen_protocol: {out} from {src.name} (version {load(src)['protocol']['version']})")
     return 0
 
 

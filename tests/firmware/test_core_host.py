@@ -166,3 +166,56 @@ def test_garbage_and_bit_flips_never_move_a_motor(core) -> None:
     assert moved == []
     # and the link still works afterwards
     assert core.frames(core.send(400000, "PING", seq=9))[-1]["cmd_seq"] == 9
+
+
+def test_a_protocol_change_is_a_regeneration(tmp_path) -> None:
+    """A v2 description with a 32-bit CRC and an extra TELEMETRY field, dropped beside v1:
+    make picks the highest version, and the host codec built from v2 reads the core's frames."""
+    from omnibench.link.codec import Codec
+    from omnibench.link.framing import decode_chunk
+    from omnibench.link.spec import load_protocol
+    from omnibench.sim.firmware.build import make
+    from tests.firmware.conftest import need
+
+    need("host")
+    text = (REPO / "protocols" / "omnibot-board-v1.toml").read_text()
+    text = text.replace("version = 1\n", "version = 2\n", 1)
+    crc = text[text.index("\n[crc]\n") + 1:text.index("\n[board]\n") + 1]
+    text = text.replace(crc, '[crc]\nname = "CRC-32/ISO-HDLC"\nwidth = 32\npoly = 0x04C11DB7\ninit = 0xFFFFFFFF\n'
+                        'refin = true\nrefout = true\nxorout = 0xFFFFFFFF\ncheck = 0xCBF43926\n'
+                        'covers = "header and payload"\nbyte_order = "little"\n\n')
+    text = text.replace('  { name = "faults", type = "u8", flags = "faults", doc = "latched fault flags" },\n',
+                        '  { name = "faults", type = "u8", flags = "faults", doc = "latched fault flags" },\n'
+                        '  { name = "temperature", type = "i16", scale = 0.01, unit = "K" },\n')
+    protos = tmp_path / "protocols"
+    protos.mkdir()
+    (protos / "omnibot-board-v1.toml").write_text((REPO / "protocols" / "omnibot-board-v1.toml").read_text())
+    (protos / "omnibot-board-v2.toml").write_text(text)
+    build = make("host", tmp_path / "build", PROTOCOL=str(protos))
+    spec = load_protocol(protos / "omnibot-board-v2.toml")
+    codec = Codec(spec)
+    c = CoreHost(build)
+    c.codec = codec
+    try:
+        assert int(c.cmd("crc " + b"123456789".hex())[0].split()[1], 16) == 0xCBF43926
+        hello, event = c.frames(c.cmd("boot 99 0"))
+        assert hello["protocol_version"] == 2 and event["arg"] == 99
+        c.send(10, "CONFIGURE", {"watchdog": 500, "telemetry_rate": 100})
+        tel = c.frames(c.cmd("poll 10010"))[0]
+        assert tel.name == "TELEMETRY" and tel["temperature"] == 0 and tel["battery_voltage"] == 24700
+    finally:
+        c.close()
+    assert decode_chunk  # the frames above went through v2's CRC-32 in CoreHost.frames
+
+
+def test_missing_tools_are_named(monkeypatch) -> None:
+    """Without the toolchain the firmware tests skip (conftest.need) and the CLI says what to install."""
+    import shutil
+
+    from omnibench.errors import UserError
+    from omnibench.sim.firmware import build
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert "avr-gcc" in build.missing_tools("avr")
+    with pytest.raises(UserError, match="apt-get install .*simavr"):
+        build.require("avr", "fil")
