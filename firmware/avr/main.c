@@ -71,7 +71,8 @@ int main(void) {
     uint32_t boot_id = draw_boot_id();
     core_boot(&core, &id, boot_id, clock_us());
     wdt_enable(WDTO_120MS);  /* a hung firmware resets (and the drivers' timeout stops them) */
-    uint32_t ticks = 0;
+    uint16_t refresh_in = 0, rebaud_in = SABERTOOTH_REBAUD_MS * 1000UL / CLOCK_TICK_US;
+    uint8_t odd = 0;
     uint8_t rebauded = 0;
     for (;;) {
         wdt_reset();
@@ -82,12 +83,13 @@ int main(void) {
             core_rx(&core, buf, n, clock_us());
         while (clock_take_tick()) {
             tick = 1;
-            ticks++;
-            if (ticks % (1000u / CLOCK_TICK_US) == 0)
+            if ((odd ^= 1))
                 analog_start_round();  /* every millisecond */
-            if (ticks % (SABERTOOTH_REFRESH_MS * 1000UL / CLOCK_TICK_US) == 0)
+            if (refresh_in-- == 0) {   /* countdowns: no division in the loop */
+                refresh_in = SABERTOOTH_REFRESH_MS * 1000UL / CLOCK_TICK_US - 1;
                 sabertooth_refresh();
-            if (!rebauded && ticks >= SABERTOOTH_REBAUD_MS * 1000UL / CLOCK_TICK_US) {
+            }
+            if (!rebauded && --rebaud_in == 0) {
                 rebauded = 1;
                 sabertooth_baud();
             }
