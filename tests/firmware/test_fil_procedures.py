@@ -121,3 +121,8 @@ def test_garbage_and_bit_flips_on_uart0_never_move_a_motor(fil_elf) -> None:
         assert any(c in (0, 4) and v == 0 for _, _, c, v in rig.wire_packets)  # the wire was alive
     finally:
         rig.close()
+
+
+def test_serve_with_a_missing_firmware_file_says_so(capsys, fil_elf) -> None:
+    code, _, err = omnibench(capsys, "sim", "serve", "--firmware", str(fil_elf.parent / "nope.elf"))
+    assert code != 0 and "no firmware at" in err and "make -C firmware" in err and "Traceback" not in err

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from omnibench.errors import UserError
 from omnibench.link.codec import Codec
 from omnibench.link.framing import Deframer, FrameError, decode_chunk, encode_frame
 from omnibench.link.spec import load_protocol
@@ -41,9 +42,10 @@ _NO_STATE = ("PING", "HELLO_REQ", "SIM_GET_TRUTH", "SIM_SET_WORLD")
 
 def build_config(elf: Path) -> dict[str, Any]:
     """The build settings written beside the .elf by the Makefile (omnibot.config.json)."""
+    if not elf.is_file():
+        raise UserError(f"no firmware at {elf} (build it with: make -C firmware)")
     cfg = elf.with_suffix(".config.json")
     if not cfg.exists():
-        from omnibench.errors import UserError
         raise UserError(f"{cfg} is missing: build the firmware with make -C firmware (it writes it)")
     return json.loads(cfg.read_text())
 
