@@ -58,6 +58,7 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
         from omnibench.sim.firmware.board import FirmwareBoard
 
         board = FirmwareBoard(world, firmware)
+        board.max_wall_s = 0.02  # stay responsive when the machine is slower than real time
     from omnibench.sim.pty_server import run_server  # imports the physics: after checking input
 
     sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr, board=board))

@@ -20,6 +20,7 @@ import json
 import math
 import os
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,7 @@ class FirmwareBoard:
         self.out = bytearray()
         self.wire_packets: list[tuple[float, int, int, int]] = []  # (board s, address, command, value)
         self.record_packets = False
+        self.max_wall_s: float | None = None
         self._from_host = Deframer(self.codec.crc, self.spec.max_frame_bytes)
         self._from_board = bytearray()
         self._pending_sim: dict[int, tuple[str, dict]] = {}
@@ -110,9 +112,14 @@ class FirmwareBoard:
         return np.array([s * self.channel[(a, c)] for a, c, s in self.motor_map])
 
     def advance_to(self, clock_us: int) -> None:
-        """Run chip and plant in lockstep up to board time `clock_us`."""
+        """Run chip and plant in lockstep up to board time `clock_us`.
+
+        With `max_wall_s` set (the pty server sets it), a call returns after that much wall
+        time even if short of `clock_us`: on a machine too slow for real time the board then
+        runs slower than the wall clock but keeps answering the host."""
+        wall_end = time.monotonic() + self.max_wall_s if self.max_wall_s else math.inf
         with self.lock:
-            while self.clock_us < clock_us:
+            while self.clock_us < clock_us and time.monotonic() < wall_end:
                 end = min(int(clock_us), self.clock_us + STEP_US)
                 self.chip.run_until(end * CYCLES_PER_US)
                 now_us = self.chip.cycles / CYCLES_PER_US
@@ -175,7 +182,7 @@ class FirmwareBoard:
                     continue
                 self.host_frames += 1
                 self._trace(f"host {msg.name} seq {msg.seq}")
-                if msg.name.startswith("SIM_"):
+                if self.spec.message(msg.name).sim_only:
                     self._pending_sim[msg.seq] = (msg.name, dict(msg.fields))
                 self._host_frames[msg.seq] = dict(msg.fields)  # applied when the firmware ACKs OK
                 if len(self._host_frames) > 64:
@@ -220,9 +227,10 @@ class FirmwareBoard:
         self._emit(msg.name, msg.seq, f)
 
     def _ack(self, seq: int, f: dict) -> None:
-        name = self.spec.by_id(f["cmd_id"]).name if self.spec.by_id(f["cmd_id"]) else "?"
+        m = self.spec.by_id(f["cmd_id"])
+        name = m.name if m else "?"
         status = self.spec.enum_name("status", f["status"])
-        if name.startswith("SIM_") and f["cmd_seq"] in self._pending_sim:
+        if m is not None and m.sim_only and f["cmd_seq"] in self._pending_sim:
             req, fields = self._pending_sim.pop(f["cmd_seq"])
             status = self._operator(req, fields, seq)
             f["status"] = self.spec.enums["status"][status]
