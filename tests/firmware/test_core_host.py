@@ -219,3 +219,21 @@ def test_missing_tools_are_named(monkeypatch) -> None:
     assert "avr-gcc" in build.missing_tools("avr")
     with pytest.raises(UserError, match="apt-get install .*simavr"):
         build.require("avr", "fil")
+
+
+def test_fault_inputs_latch_stop_and_report(core) -> None:
+    """An e-stop / undervoltage / overcurrent input latches its bit, stops, drops the enable line."""
+    _boot(core)
+    core.send(0, "SET_DUTIES", {"duty": [100] * 4})
+    core.cmd("fault 16")  # FAULTS_ESTOP
+    out = core.cmd("poll 1000")
+    ev = core.frames(out)[0]
+    assert (ev.name, ev["code"], ev["arg"]) == ("EVENT", 3, 16)
+    assert core.duties(out) == [(0, 0, 0, 0)] and "enable 0" in out
+    assert core.frames(core.cmd("poll 2000")) == []  # latched once, not re-reported
+    core.send(3000, "CLEAR_FAULTS")
+    assert core.frames(core.cmd("poll 4000"))[0]["arg"] == 16  # still pressed: latches again
+    core.cmd("fault 0")
+    core.send(5000, "CLEAR_FAULTS")
+    assert core.frames(core.cmd("poll 6000")) == []
+    assert core.frames(core.send(7000, "SET_DUTIES", {"duty": [5] * 4}))[-1]["status"] == 0
