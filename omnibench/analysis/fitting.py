@@ -172,14 +172,17 @@ def default_free(robot: Any, obs: Observations, procedures: Sequence[str] | None
 @dataclass(frozen=True)
 class Verdict:
     """Identifiability of one parameter: status is 'identified', 'conditional' (identified only
-    given a fixed constant it cannot be separated from) or 'not identifiable'."""
+    given a fixed constant it cannot be separated from), 'at bound' (the fit stopped on a physical
+    bound or at zero: the data push it past what is physical, its SE means nothing) or
+    'not identifiable'."""
 
     status: str
     reason: str
 
     @property
     def ok(self) -> bool:
-        return self.status != "not identifiable"
+        """Estimated with a meaningful standard error (not 'not identifiable', not 'at bound')."""
+        return self.status in ("identified", "conditional")
 
     def __bool__(self) -> bool:
         return self.ok
@@ -440,6 +443,23 @@ def _solve(prob: "_Problem", names: list[str], robot: Any, x0: np.ndarray, max_n
     return sol.x, prob.jacobian(sol.x)
 
 
+#: A fitted value within this fraction of its scale from a bound (or from zero) is pinned there.
+BOUND_TOL = 1e-6
+
+
+def _pinned(value: float, bounds: tuple[float, float], scale: float) -> str:
+    """'pinned at its lower bound 0' / '... at zero' when `value` sits on a bound or at zero, else ''."""
+    lo, hi = bounds
+    tol = BOUND_TOL * max(abs(scale), 1e-300)
+    if value - lo <= tol:
+        return f"pinned at its lower bound {lo:.4g}"
+    if hi - value <= tol:
+        return f"pinned at its upper bound {hi:.4g}"
+    if abs(value) <= tol:
+        return "pinned at zero"
+    return ""
+
+
 def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         procedures: Sequence[str] | None = None, max_nfev: int = 40) -> FitResult:
     """Weighted least-squares fit of `free` parameters to `obs` through the simulator.
@@ -622,6 +642,11 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                            "eta k_t k_e / R_a" if nu == "k_e" else ""))
             confounded.append({"fixed": nu, "with": [p for p in comb if p != nu], "ratio": ratio,
                                "combination": _combination(comb)})
+    for k, p in enumerate(active):
+        pinned = _pinned(values[p], param_bounds(robot, p), float(prob.scale[k]))
+        if pinned:
+            verdicts[p] = Verdict("at bound", f"{pinned}: the data push it past its physical range (check the "
+                                              "measurements that inform it); its standard error means nothing")
     for k, p in enumerate(active):
         if p not in verdicts:
             rel = se[p] / abs(values[p]) if values[p] else math.inf

@@ -35,6 +35,9 @@ from omnibench.bench.operator import Action, actions_for
 from omnibench.bench.procedure import Plan, Step, World
 from omnibench.errors import BoardError
 
+#: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
+QUESTION_FACTOR = 3.0
+
 FAULT_NAMES = ("WATCHDOG", "OVERCURRENT", "UNDERVOLTAGE", "DRIVER", "ESTOP")
 
 
@@ -135,15 +138,20 @@ class Runner:
 
     def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
                  progress: Callable[[float, str], None] | None = None,
-                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0) -> None:
+                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0,
+                 view: Any = None) -> None:
         self.plan, self.robot, self.board, self.writer, self.operator = plan, robot, board, writer, operator
         self._progress = progress or (lambda done, label: None)
         self._step_progress = 0.0
         self.echo = echo or (lambda line: None)
         self.read_timeout = read_timeout
+        #: the live view (omnibench.bench.live.LiveView): every sample, and a pause before prompts
+        self.view = view
         self.world: World | None = None
         self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
+        self.telemetry_hz = float(plan.settings.get("telemetry_hz", 100.0))
+        self._paused = False  # telemetry off while a person works (see _quiet)
         self.keep_every = self.watchdog_s / 4.0
         #: the board client feeds the watchdog itself (omnibench.link); else the runner repeats
         #: the current duties (or a keepalive) every quarter watchdog of board time
@@ -180,6 +188,8 @@ class Runner:
         if mc is not None:
             row.update({f"i{j + 1}": mc[j] for j in range(4)})
         self.writer.sample(row)
+        if self.view is not None:
+            self.view.sample(step, s)
         if data is not None:
             data.t.append(s.t)
             data.enc.append(tuple(s.encoder))
@@ -200,6 +210,7 @@ class Runner:
                  schedule: list[tuple[float, tuple[float, ...]]] | None,
                  until: Callable[[float], bool] | None = None) -> tuple[float, float]:
         """Apply `schedule` (None: motors off) for `duration` board seconds; returns (t0, t_end)."""
+        self._resync()
         if schedule:
             self._command(schedule[0][1])
         k = 0
@@ -227,17 +238,34 @@ class Runner:
         return t0, s.t
 
     # -- the operator -------------------------------------------------------------------------
-    def _ask(self, action: Action, step: Step) -> None:
+    def _quiet(self, why: str) -> None:
+        """Before a person works: motors stopped and telemetry off, so the board sends nothing
+        and its watchdog (armed only while a duty is non-zero) has nothing to guard, however
+        long the pause. Idempotent: consecutive prompts share one quiet period."""
         self._stop()
+        if self.view is not None:
+            self.view.pause()
+        if self._paused:
+            return
+        self.board.configure(telemetry_hz=0, watchdog_s=self.watchdog_s)
+        self._paused = True
+        self.writer.event("pause", why=why)
+
+    def _resync(self) -> None:
+        """After a pause: telemetry back on, anything left on the line dropped, and a first
+        fresh sample read so the board clock (which ran on during the pause) is current."""
+        if not self._paused:
+            return
+        self.board.configure(telemetry_hz=self.telemetry_hz, watchdog_s=self.watchdog_s)
+        n = self.board.discard_pending()
+        self._paused = False
+        self.writer.event("resync", discarded=int(n))
+
+    def _ask(self, action: Action, step: Step) -> None:
+        self._quiet(f"operator: {action.key}")
         self.echo(f"operator: {action.prompt}")
         answer = self.operator.perform(action, step)
         self.writer.operator_answer(step.index, action.key, action.prompt, answer, self.operator.source)
-        self._after_operator()
-
-    def _after_operator(self) -> None:
-        n = self.board.discard_pending()
-        if n:
-            self.writer.event("discarded", samples=int(n), why="telemetry queued while the operator worked")
 
     def _setup_world(self, step: Step) -> None:
         for action in actions_for(self.world, step.world):
@@ -252,8 +280,7 @@ class Runner:
     # -- steps ---------------------------------------------------------------------------------
     def run(self, steps: Sequence[Step]) -> list[dict[str, Any]]:
         """Run `steps` in order; each completed step is written at once (resume-safe)."""
-        self.board.configure(telemetry_hz=self.plan.settings.get("telemetry_hz", 100.0),
-                             watchdog_s=self.watchdog_s)
+        self.board.configure(telemetry_hz=self.telemetry_hz, watchdog_s=self.watchdog_s)
         self._stop()
         self.board.reset_encoders()
         self.writer.event("encoders_reset")
@@ -340,11 +367,10 @@ class Runner:
     def _drive_from_start_mark(self, step: Step) -> tuple["StepData", float, float, float]:
         """Operator puts the robot at the start mark; drive the step's schedule, stop, let it
         settle. Returns the samples and board times (start, end of drive, end of settle), s."""
-        self._stop()
+        self._quiet("operator: start mark")
         answer = self.operator.start_mark(step)
         self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
                                     self.operator.source)
-        self._after_operator()
         data = StepData()
         t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
         self._stop()
@@ -355,15 +381,52 @@ class Runner:
         data, t0, t_drive_end, t_end = self._drive_from_start_mark(step)
         t, phi = data.arrays(self.cpr)
         dphi = phi[-1] - phi[0]
-        measured = self.operator.measure(step)
+        self._quiet("operator: measure")
+        measured, questioned = self._measure(step, dphi)
+        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
+                **self.slip_check(dphi, measured, step), "tape_questioned": questioned,
+                **self._electrical(data)}
+
+    def _measure(self, step: Step, dphi: np.ndarray) -> tuple[Any, bool]:
+        """The operator's reading, questioned at once while it is far from what the encoders
+        measured (see `tape_question`); returns (reading, whether it was questioned and kept)."""
         prompt = ("distance travelled (m)" if step.measure == "distance"
                   else "displacement forward, left (m)")
-        self.writer.operator_answer(step.index, step.measure or "measure", prompt,
-                                    list(measured) if isinstance(measured, tuple) else measured,
-                                    self.operator.source)
-        self._after_operator()
-        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
-                **self.slip_check(dphi, measured, step), **self._electrical(data)}
+        measured = self.operator.measure(step)
+        for _ in range(5):
+            self.writer.operator_answer(step.index, step.measure or "measure", prompt,
+                                        list(measured) if isinstance(measured, tuple) else measured,
+                                        self.operator.source)
+            question = self.tape_question(dphi, measured, step)
+            if question is None:
+                return measured, False
+            self.writer.event("tape_questioned", step=step.index, question=question)
+            self.echo(question)
+            again = self.operator.remeasure(step, question)
+            if again is None:
+                self.writer.event("tape_kept", step=step.index, question=question)
+                return measured, True
+            measured = again
+        return measured, True
+
+    def tape_question(self, dphi: np.ndarray, measured: Any, step: Step) -> str | None:
+        """A question for the operator when the tape reading is beyond QUESTION_FACTOR times the
+        no-slip tolerance from the encoders' no-slip displacement (a misread tape, a wrong run),
+        else None. Smaller differences are slip, reported by the no-slip check."""
+        chk = self.slip_check(dphi, measured, step)
+        tol = self.plan.settings["no_slip"]
+        if step.measure == "distance":
+            enc, m = abs(chk["encoder_distance"]), float(measured)
+            gap, size = abs(m - enc), max(abs(m), enc)
+            said = f"encoders say {enc:.2f} m, you typed {m:.2f} m"
+        else:
+            ef, el = chk["kin_forward"], chk["kin_left"]
+            mf, ml = (float(v) for v in measured)
+            gap, size = math.hypot(mf - ef, ml - el), max(math.hypot(mf, ml), math.hypot(ef, el))
+            said = (f"encoders say {ef:.2f} m forward, {el:.2f} m left; you typed {mf:.2f} m forward, "
+                    f"{ml:.2f} m left")
+        allowed = QUESTION_FACTOR * (tol["tolerance"] + tol["relative_tolerance"] * size)
+        return said if gap > allowed else None
 
     def slip_check(self, dphi: np.ndarray, measured: Any, step: Step) -> dict[str, Any]:
         """Compare the encoders' rolling distance with the operator's measurement."""

@@ -23,22 +23,36 @@ import click
               metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
 @click.option("--resume", is_flag=True,
               help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
+@click.option("--without-current", is_flag=True,
+              help="Run the energy trajectories even with no battery current source (no energy is measured).")
+@click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
+              show_default=True, help="Who answers the prompts (see omnibench sweep --help).")
+@click.option("--plot", is_flag=True, help="A live matplotlib window of the wheel speeds (needs a display).")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, resume: bool, as_json: bool) -> None:
+            ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
+            plot: bool, as_json: bool) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
     from omnibench.bench.campaign import parse_stages, run_campaign
+    from omnibench.cli.stages import run_analysis
+
+    from omnibench.cli import verbosity
+
+    level = verbosity()
 
     def echo(line: str) -> None:
-        click.echo(line, err=as_json)
+        if level >= 0:
+            click.echo(line, err=as_json)
 
     res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                        progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
-                       stages=parse_stages(analysis), resume=resume)
+                       stages=parse_stages(analysis), resume=resume,
+                       without_current=without_current, operator=who, analyse=run_analysis, plot=plot,
+                       verbosity=level)
     if as_json:
         from omnibench.runs.store import json_ready
 

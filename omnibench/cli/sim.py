@@ -20,7 +20,8 @@ def command() -> None:
 @click.option("--seed", type=int, default=None, help="Seed for sensor noise, faults and boot ids.")
 @click.option("--clock", type=click.Choice(["realtime", "fast"]), default="realtime", show_default=True,
               help="realtime: board time follows the wall clock (x --speed); fast: as fast as the host reads.")
-@click.option("--speed", type=float, default=None, help="Realtime clock: simulated seconds per wall second.")
+@click.option("--speed", type=float, default=None, help="Simulated seconds per wall second: always on the realtime clock, while telemetry is "
+              "off on the fast clock (a person at a prompt).")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any sim:// URL parameter, e.g. --set mode=upside_down --set drop=0.01 (repeatable).")
 @click.option("--status-file", type=click.Path(dir_okay=False), help="Keep the board's duties/faults/state in this JSON file.")

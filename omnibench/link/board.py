@@ -102,6 +102,7 @@ class Board:
         self._foreign_version: int | None = None  # from a HELLO whose layout is not ours
         self._reset_reported = False
         self._reset_message = ""
+        self._rx_head = bytearray()          # the first bytes received (to recognise a text-printing sketch)
 
     # ================================================================== opening
     @classmethod
@@ -125,6 +126,15 @@ class Board:
         board._strict = strict
         try:
             board._handshake(timeout, baud)
+        except BoardError:
+            board._close_port()
+            if board.hello is None and board._foreign_version is None:
+                from omnibench.link.sniff import sniff_sketch
+
+                hint = sniff_sketch(url, bytes(board._rx_head), baud)
+                if hint:
+                    raise BoardError(hint) from None
+            raise
         except BaseException:
             board._close_port()
             raise
@@ -468,6 +478,8 @@ class Board:
             raise self._lost(f"read failed: {exc}") from None
         frames = 0
         if data:
+            if len(self._rx_head) < 2048:
+                self._rx_head += data[:2048 - len(self._rx_head)]
             self._last_rx_wall = time.monotonic()
             self.stats.bytes_in += len(data)
             for body in self._deframer.feed(data):

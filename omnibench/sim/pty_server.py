@@ -6,7 +6,8 @@ The host opens that path like any serial port (`Board.open("/dev/pts/5")`).
 
 Clocks: `realtime` (default; `speed` scales it) or `fast`: the board emits its next frame
 as soon as the host has read everything it sent (the server watches the slave's input
-queue), so simulated time runs as fast as the host reads.
+queue), so simulated time runs as fast as the host reads; while telemetry is off (a person at a
+prompt) it follows the wall clock times `speed`, so a test can pause for minutes of board time.
 
 The status file (JSON, replaced atomically) holds the board's duties, faults, boot id and
 last command whenever they change, and `"serving": false` with the motors stopped on exit,
@@ -159,8 +160,8 @@ class PtyServer:
                 if fast:
                     now = time.monotonic()
                     nxt = b.next_output_us()
-                    if nxt is None:
-                        b.advance_to(b.clock_us + int((now - wall_anchor) * 1e6))
+                    if nxt is None:  # telemetry off: time follows the wall clock (x speed)
+                        b.advance_to(b.clock_us + int((now - wall_anchor) * self.world.speed * 1e6))
                     elif p.unread() == 0 and not p.pending:
                         b.advance_to(nxt)
                     wall_anchor = now

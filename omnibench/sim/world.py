@@ -70,6 +70,12 @@ class World:
     protocol: str = "omnibot-board-v1"   #: protocol description (name in protocols/ or path)
     baudrate: int = 115200               #: the board's UART speed; a host at another speed reads noise
     name: str | None = None              #: registry name, so `sim://ammeter?board=NAME` finds it
+    #: mis-wiring: board motor channel k (FL FR RL RR order) drives wheel |wiring[k]| (1-based),
+    #: reversed when negative; its current sensor follows the motor
+    wiring: tuple[int, int, int, int] = (1, 2, 3, 4)
+    #: board encoder channel k reads wheel |encoder_wiring[k]|, counting backwards when negative
+    #: (None: the same as `wiring`, i.e. the encoder travels with its motor's connector)
+    encoder_wiring: tuple[int, int, int, int] | None = None
 
     def robot(self):  # -> omnibench.model.Robot
         """The Robot this world simulates (default Omnibot or `robot_file`)."""
@@ -215,6 +221,15 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
             changes["firmware_version"] = tuple(int(x) for x in vals)
         elif k in ("protocol", "name"):
             changes[k] = str(v)
+        elif k in ("wiring", "encoder_wiring"):
+            vals = v if isinstance(v, (list, tuple)) else str(v).split(",")
+            try:
+                w = tuple(int(str(x).strip()) for x in vals)
+            except ValueError:
+                raise UserError(f"{where}: {k} needs four signed wheel numbers, e.g. 2,1,3,-4") from None
+            if len(w) != 4 or sorted(abs(x) for x in w) != [1, 2, 3, 4]:
+                raise UserError(f"{where}: {k} must name each wheel 1-4 once (negative: reversed), e.g. 2,1,3,-4")
+            changes[k] = w
         elif k == "baudrate":
             changes["baudrate"] = int(_float(v, f"{where} baudrate"))
         else:
