@@ -26,8 +26,10 @@ def command() -> None:
               help="Any sim:// URL parameter, e.g. --set mode=upside_down --set drop=0.01 (repeatable).")
 @click.option("--status-file", type=click.Path(dir_okay=False), help="Keep the board's duties/faults/state in this JSON file.")
 @click.option("--ammeter", is_flag=True, help="Also serve a SCPI ammeter on a second pseudo-terminal (its path is line 2).")
+@click.option("--firmware", type=click.Path(dir_okay=False), default=None,
+              help="Run this board firmware (.elf, make -C firmware) in simavr instead of the simulated board.")
 def serve(world_file: str | None, seed: int | None, clock: str, speed: float | None, settings: tuple[str, ...],
-          status_file: str | None, ammeter: bool) -> None:
+          status_file: str | None, ammeter: bool, firmware: str | None) -> None:
     """Serve the simulated board on a pseudo-terminal until interrupted.
 
     Prints the device path on the first line of stdout (the ammeter's on the second with
@@ -49,6 +51,15 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
             raise UserError(f"--set needs KEY=VALUE, got {item!r}")
         params[key.strip()] = value.strip()
     _, world, _ = world_from_url("sim://omnibot?" + urlencode(params))
+    board = None
+    if firmware is not None:
+        from omnibench.sim.firmware.build import require
+
+        require("fil")
+        from omnibench.sim.firmware.board import FirmwareBoard
+
+        board = FirmwareBoard(world, firmware)
+        board.max_wall_s = 0.02  # stay responsive when the machine is slower than real time
     from omnibench.sim.pty_server import run_server  # imports the physics: after checking input
 
-    sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr))
+    sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr, board=board))

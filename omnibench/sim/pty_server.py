@@ -105,9 +105,9 @@ class PtyServer:
     """The simulated board (and optionally its SCPI ammeter) on pseudo-terminals."""
 
     def __init__(self, world: World, *, status_file: str | Path | None = None, ammeter: bool = False,
-                 log: TextIO | None = None) -> None:
+                 log: TextIO | None = None, board=None) -> None:
         self.world = world
-        self.board = SimBoard(world)
+        self.board = board if board is not None else SimBoard(world)  # or a FirmwareBoard
         self.pty = _Pty()
         self.ammeter_pty = _Pty() if ammeter else None
         self.ammeter = SimAmmeter(self.board, seed=world.seed) if ammeter else None
@@ -229,9 +229,10 @@ class PtyServer:
             self.ammeter_pty.close()
 
 
-def run_server(world: World, *, status_file: str | None, ammeter: bool, out: TextIO, log: TextIO) -> int:
+def run_server(world: World, *, status_file: str | None, ammeter: bool, out: TextIO, log: TextIO,
+               board=None) -> int:
     """Serve until SIGINT/SIGTERM: print the device path(s) on `out`, notes on `log`."""
-    server = PtyServer(world, status_file=status_file, ammeter=ammeter, log=log)
+    server = PtyServer(world, status_file=status_file, ammeter=ammeter, log=log, board=board)
 
     def _stop(signum, frame) -> None:  # noqa: ARG001
         server.stop_event.set()
@@ -241,7 +242,8 @@ def run_server(world: World, *, status_file: str | None, ammeter: bool, out: Tex
     print(server.path, file=out, flush=True)
     if server.ammeter_pty is not None:
         print(server.ammeter_pty.path, file=out, flush=True)
-    print(f"omnibench sim: simulated Omnibot on {server.path} ({world.clock} clock, seed {world.seed})"
+    what = f"firmware {board.elf} on a simulated ATmega2560" if board is not None else "simulated Omnibot"
+    print(f"omnibench sim: {what} on {server.path} ({world.clock} clock, seed {world.seed})"
           + (f", ammeter on {server.ammeter_pty.path}" if server.ammeter_pty else "")
           + "; Ctrl-C stops it", file=log, flush=True)
     server.serve()

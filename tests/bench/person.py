@@ -39,6 +39,7 @@ class Person:
     pause: Callable[[int, str], float] = lambda k, text: 0.0
     tape: Callable[[int, str], str] | None = None
     remeasure: Callable[[int, str], str] = lambda k, text: "keep"
+    answers: Callable[[int, str], bool] = lambda k, text: True  #: False: `before` answered prompt k
     timeout: float = 240.0
     prompts: list[str] = field(default_factory=list)
     quiet: list[dict] = field(default_factory=list)
@@ -92,7 +93,9 @@ class Person:
                 self.quiet.append({"prompt": k, "telemetry_hz": st["telemetry_hz"],
                                    "motors_stopped": st["motors_stopped"], "faults": st["faults"],
                                    "board_time": st["board_time"]})
-            if i == 0:
+            if not self.answers(k, text):
+                pass
+            elif i == 0:
                 if "start mark" in text:
                     self._start = tuple(self.status_after(time.time())["pose"])
                 child.sendline("yes")

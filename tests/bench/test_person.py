@@ -109,14 +109,13 @@ def test_explicit_answers_and_type_ahead_dropped(fast_served, tmp_path) -> None:
             person.child.sendline("")
             person.child.expect("please type yes or no")
             person.child.expect(r"Type yes when done, or no to stop")
-        if k == 1:  # answer, then type ahead while the standard set's step runs
-            person.child.sendline("yes")
-            person.child.sendline("yes")
+        if k == 1:  # answer, and in the same keystrokes type ahead while the standard set's step runs
+            person.child.send("yes\ryes\ryes\r")  # one write: all three are in before the step starts
 
     person = Person(fast_served, ["sweep", "--port", fast_served.path, "--operator", "person",
                                   "--procedure", str(HERE / "sweep.toml"), "--out", str(out)],
-                    pause=lambda k, text: 0.5 if k == 2 else 0.0)
-    # k == 1 is answered by `before`; the person's own "yes" after it is one more type-ahead
+                    pause=lambda k, text: 0.5 if k == 2 else 0.0, answers=lambda k, text: k != 1)
+    # k == 1 is answered by `before`; its two extra "yes" are type-ahead
     assert person.run(before) == 0, person.output[-2000:]
     assert "Mount wheel set 'weighted'" in person.prompts[2]
     got = _check_complete(_only_run(out), STEPS["sweep"])
