@@ -87,14 +87,14 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
     costs = parse_costs(cost, robot_second)
     files = procedure_files(procedures_dir)
     space = space_from_files(robot, files, Limits(floor_length=floor_length))
-    res = None
+    res = obs = None
     have: set[str] = set()
     if runs:
         obs = Observations.from_runs(runs, robot)
         res = fit(robot, obs)
         have = set(obs.procedures())
     floor = [c for c in diagnostic_floor(robot, files, space) if c.procedure not in have]
-    design = plan(robot, res, targets, space, costs, current=not no_current, required=floor,
+    design = plan(robot, res, targets, space, costs, current=not no_current, required=floor, obs=obs,
                   budget_seconds=60 * budget_minutes if budget_minutes else math.inf,
                   budget_actions=budget_actions if budget_actions is not None else math.inf)
     written = write_procedures(design.units, files, out, robot) if design.units else []

@@ -135,21 +135,26 @@ def _value(robot: Any, name: str) -> float:
     return param_value(robot, name)
 
 
-def prior_information(res: FitResult | None, names: Sequence[str], scale: np.ndarray) -> np.ndarray:
-    """Information already in hand (scaled): the inverse of the fit's covariance on the parameters
-    it estimated, plus a weak prior (SD = PRIOR_SD scales) on every parameter."""
+def prior_information(res: FitResult | None, names: Sequence[str], scale: np.ndarray,
+                      obs: Observations | None = None) -> np.ndarray:
+    """Information already in hand (scaled) plus a weak prior (SD = PRIOR_SD scales) on every
+    parameter. The data's information is J^T J / s2_g of the fit's own observations over *all*
+    `names` at the fitted values (not the inverse of the fit's covariance: that one is conditional
+    on the parameters the fit held fixed, and would count their data twice)."""
     n = len(names)
     M = np.eye(n) / PRIOR_SD ** 2
-    if res is None or res.cov.empty:
+    if res is None or obs is None or not len(res.residuals):
         return M
-    act = [p for p in res.cov.index if p in names]
-    if not act:
+    pred = Predictor(obs, res.procedures)
+    r = res.residuals
+    if len(r) != len(pred):
         return M
-    idx = [list(names).index(p) for p in act]
-    cov = res.cov.loc[act, act].to_numpy(float) / np.outer(scale[idx], scale[idx])
-    try:
-        inv = np.linalg.inv(cov)
-    except np.linalg.LinAlgError:
-        inv = np.linalg.pinv(cov)
-    M[np.ix_(idx, idx)] += 0.5 * (inv + inv.T)
-    return M
+    used = r["used"].to_numpy(bool) & np.isfinite(r["sigma"].to_numpy(float))
+    sigma = r["sigma"].to_numpy(float)
+    groups = (r["procedure"].astype(str) + "/" + r["signal"].astype(str)).to_numpy()
+    s2 = np.array([res.group_s2.get(g, 1.0) or 1.0 for g in groups])
+    prob = _Problem(res.robot, pred, list(names), used, sigma)
+    prob.scale = scale
+    J = prob.jacobian(np.array([float(_value(res.robot, p)) for p in names]) / scale)
+    Jw = J / np.sqrt(s2[used])[:, None]
+    return M + Jw.T @ Jw

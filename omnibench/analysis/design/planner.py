@@ -215,8 +215,8 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
          costs: Costs = Costs(), *, current: bool = True, start: World | None = None,
          budget_seconds: float = math.inf, budget_actions: float = math.inf, margin: float = MARGIN,
          required: Sequence[Candidate] = (), info: CandidateInformation | None = None,
-         max_units: int = 200) -> Design:
-    """The next steps for `targets` from the fit `res` (None: the prior alone) on `robot`.
+         max_units: int = 200, obs: Any = None) -> Design:
+    """The next steps for `targets` from the fit `res` of `obs` (None: the prior alone) on `robot`.
 
     required: candidates always included (a diagnostic floor), unless the data already hold them."""
     model = res.robot if res is not None else robot
@@ -231,7 +231,7 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     if info is None:
         info = candidate_information(model, space.candidates, names, current=current, group_s2=group_s2)
     scale = info.scale
-    M0 = prior_information(res, names, scale)
+    M0 = prior_information(res, names, scale, obs)
     data0 = M0 - np.eye(len(names)) / PRIOR_SD ** 2
     se_before = dict(zip(names, _se(M0, scale)))
     for p in names:  # parameters the fit has not estimated yet have no SE of their own
