@@ -45,7 +45,15 @@ from omnibench.errors import UserError
 
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).
 MARGIN = 0.9
-REPS = (1, 2, 4, 8)
+REPS = (1, 2, 4)
+#: At most this many repetitions of one step per plan: replicated extremes are what an optimal
+#: design for a perfect model asks for, but the fit reads many identical levels whose residuals
+#: agree (any small model error) as structure and widens the intervals (fitting.residual_structure);
+#: spreading over neighbouring levels keeps the prediction honest and diagnosis informed.
+MAX_REPS = 4
+#: A parameter whose weight in an invisible direction exceeds this is not separable (a small weight
+#: still moves it: with one wheel load only a (1 + c F_N) is seen, a's weight is ~0.1).
+NULL_WEIGHT = 0.05
 
 
 def parse_targets(text: str, robot: Any) -> dict[str, tuple[float, bool]]:
@@ -183,7 +191,7 @@ def _null_params(M: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, flo
     smax = math.sqrt(max(w.max(), 1e-300))
     for k in range(len(w)):
         if math.sqrt(max(w[k], 0.0)) <= RANK_TOL * 10 * smax:
-            comb = {names[keep[i]]: float(v[i, k]) for i in range(len(keep)) if abs(v[i, k]) > 0.2}
+            comb = {names[keep[i]]: float(v[i, k]) for i in range(len(keep)) if abs(v[i, k]) > NULL_WEIGHT}
             for n in comb:
                 out.setdefault(n, comb)
     return out
@@ -245,8 +253,9 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     for p in targets:
         if p in null:
             comb = " ".join(f"{w:+.2f} {n}" for n, w in null[p].items())
+            main = max(null[p], key=lambda n: abs(null[p][n]))  # the direction's main parameter
             refused[p] = (f"not separable with the candidate steps (only {comb} is seen); "
-                          + separating_experiment(p))
+                          + separating_experiment(main))
         elif res is not None and p in res.identifiable and res.identifiable[p].status == "conditional":
             conditional[p] = res.identifiable[p].reason
     notes = list(space.excluded[:0])
@@ -346,7 +355,9 @@ def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: n
         d = np.diagonal(V, axis1=-2, axis2=-1)[..., tidx]
         new = np.where(np.all(d >= 0, axis=-1), np.sum(np.maximum(d / t2, 1.0), axis=-1), np.inf)
         ratio = (phi - new) / (reps[:, None] * unit[None])
-        ok = (spent_s + reps[:, None] * rs[None] <= budget_s + 1e-9) & (spent_a + reps[:, None] * ms[None] <= budget_a)
+        have = np.array([chosen.get(int(k), 0) for k in ks])
+        ok = ((spent_s + reps[:, None] * rs[None] <= budget_s + 1e-9) & (spent_a + reps[:, None] * ms[None] <= budget_a)
+              & (have[None] + reps[:, None] <= MAX_REPS))
         ratio = np.where(ok, ratio, -np.inf)
         r, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if not ratio[r, j] > 0:
