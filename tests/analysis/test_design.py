@@ -17,10 +17,11 @@ from omnibench.model import default_robot
 
 STEADY = {"min_hold": 0.2, "window": 0.3}
 TRUTH = dict(a=0.02, b=0.45, c=0.015)
+LIMITS = Limits(max_duty=0.8)  # the shipped files' highest level, as space_from_files caps it
 
 
 def _sweep_space(robot, wheel_sets=(("standard", (0.9,) * 4), ("weighted", (1.9,) * 4))) -> Space:
-    sp = build_space(robot, wheel_sets=list(wheel_sets), payloads=[0.0], steady=STEADY)
+    sp = build_space(robot, wheel_sets=list(wheel_sets), payloads=[0.0], steady=STEADY, limits=LIMITS)
     return Space([c for c in sp.candidates if c.procedure == "sweep"], sp.sweep_rest)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -27,7 +28,8 @@ COMMAND_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_
 
 def space_from_files(robot: Any, files: Mapping[str, str | Path], limits: Limits = Limits()) -> Space:
     """The candidate steps the lab's procedure files allow (their wheel sets and payloads, their
-    steady-state and settle settings; durations: the file's, twice and three times it), within `limits`."""
+    steady-state and settle settings; durations: the file's, twice and three times it; duties up
+    to the highest the files use), within `limits`."""
     sweep = load_plan(files["upside_down_sweep"], robot, expect="upside_down_sweep")
     fwd = load_plan(files["forward_runs"], robot, expect="forward_runs")
     lat = load_plan(files["lateral_runs"], robot, expect="lateral_runs")
@@ -36,6 +38,10 @@ def space_from_files(robot: Any, files: Mapping[str, str | Path], limits: Limits
     payloads = sorted({s.world.payload for s in lat.steps} | {0.0})
     d = fwd.steps[0].duration if fwd.steps else 1.5
     settle = fwd.steps[0].settle if fwd.steps else 1.0
+    # never beyond the highest duty the lab's own files use: the model is tested up to there (on the
+    # simulated robot the residuals at 0.95 carry structure the fit then reads as model error)
+    top = max([abs(s.peak_duty) for s in sweep.steps + fwd.steps] or [limits.max_duty])
+    limits = replace(limits, max_duty=min(limits.max_duty, top))
     sweep_duties = sorted({round(abs(s.params["duty"]), 6) for s in sweep.steps} | set(SWEEP_DUTIES))
     forward_duties = sorted({round(abs(s.params["duty"]), 6) for s in fwd.steps} | set(FORWARD_DUTIES))
     return build_space(robot, wheel_sets=wheel_sets, payloads=payloads, steady=sweep.settings["steady_state"],

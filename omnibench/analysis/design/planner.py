@@ -45,12 +45,12 @@ from omnibench.errors import UserError
 
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).
 MARGIN = 0.9
-REPS = (1, 2, 4)
+REPS = (1, 2, 4, 8)
 #: At most this many repetitions of one step per plan: replicated extremes are what an optimal
 #: design for a perfect model asks for, but the fit reads many identical levels whose residuals
 #: agree (any small model error) as structure and widens the intervals (fitting.residual_structure);
 #: spreading over neighbouring levels keeps the prediction honest and diagnosis informed.
-MAX_REPS = 4
+MAX_REPS = 8
 #: A parameter whose weight in an invisible direction exceeds this is not separable (a small weight
 #: still moves it: with one wheel load only a (1 + c F_N) is seen, a's weight is ~0.1).
 NULL_WEIGHT = 0.05
