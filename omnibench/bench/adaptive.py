@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from omnibench.analysis.design.files import diagnostic_floor, space_from_files, write_procedures
-from omnibench.analysis.design.planner import Design, Unit, parse_targets, plan, target_se
+from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
 from omnibench.bench.procedure import World
 from omnibench.errors import UserError

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import tomli_w
 
-from omnibench.analysis.design.planner import Design, Unit
+from omnibench.analysis.design.planner import Unit
 from omnibench.analysis.design.space import FORWARD_DUTIES, SWEEP_DUTIES, Candidate, Limits, Space, build_space
 from omnibench.bench.procedure import load_plan
 

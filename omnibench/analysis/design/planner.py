@@ -12,11 +12,12 @@ nuisance directions (k_e, R_a) and parameters already known well enough, and is 
 which parameters were asked for. Weighting by 1/t_i^2 makes Phi invariant to units.
 
 Greedy selection: from the information in hand M (fit + weak prior), repeatedly add the
-candidate (repeated r = 1, 2 or 4 times) with the largest drop of Phi per second of cost,
-where a candidate in a world not yet visited also pays the operator actions to reach it from
-the nearest visited world. Stops when every target is predicted met (with `margin`), when no
-candidate lowers Phi, or at the budget. The chosen worlds are then ordered to need the fewest
-actions (all orders of the few worlds are tried).
+candidate (repeated r = 1, 2, 4 or 8 times, at most MAX_REPS in all) with the largest drop
+of Phi per second of cost. Operator actions to reach a world (flip, wheel swap, payload) are
+discrete, so the greedy runs once per set of worlds, that set paying its setup up front, and
+the cheapest set that meets the targets wins. Stops when every target is predicted met (at
+`margin` of it), when no candidate lowers Phi, or at the budget; repetitions later choices
+made redundant are then removed. The worlds are ordered to need the fewest actions.
 
 Identifiability: a target the data in hand plus every candidate cannot separate (a null
 direction of their information) is refused, with the experiment that would separate it; a
@@ -37,7 +38,7 @@ from omnibench.analysis.design.information import (
     PRIOR_SD, CandidateInformation, candidate_information, prior_information,
 )
 from omnibench.analysis.design.space import (
-    ACTION_WORDS, Candidate, Costs, Space, sequence_actions, world_actions,
+    ACTION_WORDS, Candidate, Costs, Space, sequence_actions,
 )
 from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, param_value
 from omnibench.bench.procedure import World
@@ -258,7 +259,7 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
                           + separating_experiment(main))
         elif res is not None and p in res.identifiable and res.identifiable[p].status == "conditional":
             conditional[p] = res.identifiable[p].reason
-    notes = list(space.excluded[:0])
+    notes: list[str] = []
     active = [p for p in targets if p not in refused]
     tidx = np.array([names.index(p) for p in active], dtype=int)
     t2 = np.array([(margin * tabs[p] / scale[names.index(p)]) ** 2 for p in active])
