@@ -253,6 +253,9 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     space = space_from_files(robot, files, limits)
     if not port:
         raise UserError("no --port given (sim:// for the simulated robot)")
+    for name, v in (("--budget-minutes", budget_minutes), ("--budget-actions", budget_actions)):
+        if v is not None and not v > 0:
+            raise UserError(f"{name} {v}: a budget must be a positive number")
     runs_dir = out / "runs"
     if runs_dir.is_dir() and any(runs_dir.glob("*/run.json")):
         raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
