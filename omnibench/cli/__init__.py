@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate-energy": ("omnibench.cli.analysis", "Predicted vs measured battery energy per run."),
     "predict": ("omnibench.cli.analysis", "Model prediction of a logged run vs measurement."),
     "diagnose": ("omnibench.cli.diagnose", "Find the missing effect, add it, report before/after."),
+    "plan": ("omnibench.cli.plan", "Plan the next steps that reach target SEs at least cost."),
 }
 
 
