@@ -432,7 +432,8 @@ class Runner:
         sel = t >= t[-1] - ss["average"]
         w = angle_slope(t[sel], phi[sel]) if sel.sum() >= 3 else np.full(4, np.nan)
         dts = np.diff(t[sel])
-        wk = np.diff(phi[sel], axis=0) / dts[:, None] if len(dts) else np.full((1, 4), np.nan)
+        later = dts > 0  # two samples with one board time (a repeated frame) give no speed
+        wk = np.diff(phi[sel], axis=0)[later] / dts[later, None] if later.any() else np.full((1, 4), np.nan)
         v = verdict[0]
         rec: dict[str, Any] = {
             "steady": bool(v.steady) if v is not None else False,
