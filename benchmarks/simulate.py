@@ -11,6 +11,11 @@ Prints, each with its target (issue 2):
      use) and method="heun" (2nd order; its accuracy against RK4 is printed)  target >= 10,000x
   3. the ratio against a plain per-step numpy implementation of the paper's model (below),
      which is also checked to give the same trajectory as the kernel.
+  4. with --compare-width: whether the lane form pays for itself. The aggregate figure is
+     measured in fresh processes with the kernel built for 4 lanes per group (the default:
+     hooks rewritten into lane form by omnibench/model/lanes.py) and for 1 lane (the plain
+     form: one trajectory per loop, each hook as written), alternating, and the CPU time per
+     trajectory step compared. The rewriting is kept only while this ratio is well above 1.
 
 Timings are the best of a few repeats (wall clock, all cores), with the CPU time of that run:
 the 2-core machine is shared, so the load average is printed and the aggregate figure is also
@@ -121,7 +126,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, default=2000, help="parameter sets per batch (default 2000)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
+    ap.add_argument("--aggregate-only", action="store_true", help="only figure 2")
+    ap.add_argument("--compare-width", type=int, default=0, metavar="ROUNDS",
+                    help="figure 4 only: ROUNDS alternating runs each of the 4-lane and the 1-lane kernel")
     args = ap.parse_args(argv)
+    if args.compare_width:
+        return compare_width(args.compare_width, args.batch)
     say = (lambda *a, **k: None) if args.json else print
     robot, scenario = default_robot(), Scenario()
     out: dict = {"t_end_s": T_END, "dt_s": DT, "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}
@@ -141,6 +151,12 @@ def main(argv=None) -> int:
             "figures are lower than on an idle machine; the CPU-time lines estimate the idle figure "
             "(still pessimistic: other work also slows our CPU time)")
 
+    if args.aggregate_only:
+        aggregate(out, say, robot, scenario, args.batch)
+        if args.json:
+            print(json.dumps(out, indent=2, default=float))
+        return 0
+
     # 1. one trajectory, default method, every step recorded into a DataFrame
     t_single, df, _ = best_of(lambda: simulate(robot, scenario, T_CMD, U_CMD, T_END), 5)
     rtf_single = T_END / t_single
@@ -149,11 +165,20 @@ def main(argv=None) -> int:
         f"RTF {rtf_single:9,.0f}x   target >= {TARGET_SINGLE:,.0f}x  "
         f"{'ok' if rtf_single >= TARGET_SINGLE else 'MISSED'}")
 
-    # 2. many parameter sets at once
-    sets = parameter_sets(robot, args.batch)
+    finals = aggregate(out, say, robot, scenario, args.batch)
+    gap = np.abs(finals["heun"] - finals["rk4"]).max(axis=0)
+    out["heun_vs_rk4_final_pose"] = {"x_m": gap[0], "y_m": gap[1], "psi_rad": gap[2]}
+    say(f"   Heun vs RK4, final pose over all sets: max |dx| {gap[0]:.1e} m, |dy| {gap[1]:.1e} m, "
+        f"|dpsi| {gap[2]:.1e} rad (RK4 is ~20x closer to a fine-step reference)")
+    return numpy_figures(out, say, robot, scenario, rtf_single, args.json)
+
+
+def aggregate(out: dict, say, robot, scenario, batch: int) -> dict:
+    """Figure 2: many parameter sets at once, RK4 and Heun; returns each method's final poses."""
+    sets = parameter_sets(robot, batch)
     lam = np.array([prepare(r, scenario).substeps_lambda for r in sets[:200]])
     out["aggregate"] = {}
-    say(f"\n2. {args.batch} parameter sets at once (simulate_batch, friction +-10 %, record every 100 ms):")
+    say(f"\n2. {batch} parameter sets at once (simulate_batch, friction +-10 %, record every 100 ms):")
     finals = {}
     for method in ("rk4", "heun"):
         subs = np.bincount([stable_substeps(x, DT, method) for x in lam])
@@ -162,7 +187,7 @@ def main(argv=None) -> int:
             lambda: simulate_batch(sets, scenario, T_CMD, U_CMD, T_END, method=method, record_every=100),
             3)
         finals[method] = res.array[:, -1, :3]
-        sim_s = args.batch * T_END
+        sim_s = batch * T_END
         rtf = sim_s / t_batch
         # what the same CPU work gives when the machine's cores are ours alone
         rtf_cpu = sim_s / (cpu / min(out["numba_threads"], out["cpus"]))
@@ -174,12 +199,11 @@ def main(argv=None) -> int:
             f"{'ok' if rtf >= TARGET_AGGREGATE else 'MISSED'}")
         say(f"         CPU {cpu:6.2f} s = {per_step:.0f} ns per trajectory step; with the {out['cpus']} cores free: "
             f"RTF {rtf_cpu:9,.0f}x   ({hist})")
-    gap = np.abs(finals["heun"] - finals["rk4"]).max(axis=0)
-    out["heun_vs_rk4_final_pose"] = {"x_m": gap[0], "y_m": gap[1], "psi_rad": gap[2]}
-    say(f"   Heun vs RK4, final pose over all sets: max |dx| {gap[0]:.1e} m, |dy| {gap[1]:.1e} m, "
-        f"|dpsi| {gap[2]:.1e} rad (RK4 is ~20x closer to a fine-step reference)")
+    return finals
 
-    # 3. the plain numpy implementation
+
+def numpy_figures(out: dict, say, robot, scenario, rtf_single: float, as_json: bool) -> int:
+    """Figure 3: the plain per-step numpy loop, and the kernel's speed-up over it."""
     np_model = NumpyModel(robot)
     t_np_span = 2.0
     t_np, x_np, _ = best_of(lambda: np_model.run(t_np_span), 2)
@@ -196,8 +220,33 @@ def main(argv=None) -> int:
     say(f"   kernel vs numpy: one trajectory {out['numpy']['single_ratio']:,.0f}x faster; "
         f"batch {out['numpy']['aggregate_ratio_heun']:,.0f}x (Heun) / "
         f"{out['numpy']['aggregate_ratio_rk4']:,.0f}x (RK4) more simulated seconds per second")
-    if args.json:
+    if as_json:
         print(json.dumps(out, indent=2, default=float))
+    return 0
+
+
+def compare_width(rounds: int, batch: int) -> int:
+    """Figure 4: CPU per trajectory step of the 4-lane kernel against the 1-lane (plain) one,
+    in fresh processes, alternating so that the machine's changing load hits both alike."""
+    import subprocess
+
+    per: dict[int, dict[str, list[float]]] = {1: {"rk4": [], "heun": []}, 4: {"rk4": [], "heun": []}}
+    for r in range(rounds):
+        for width in (4, 1):
+            env = dict(os.environ, OMNIBENCH_KERNEL_WIDTH=str(width))
+            res = subprocess.run([sys.executable, __file__, "--aggregate-only", "--json", "--batch", str(batch)],
+                                 env=env, capture_output=True, text=True, check=True)
+            got = json.loads(res.stdout)
+            for method in ("rk4", "heun"):
+                per[width][method].append(got["aggregate"][method]["cpu_ns_per_step"])
+            print(f"round {r + 1}, {width} lane{'s' if width > 1 else ''}: "
+                  + ", ".join(f"{m} {per[width][m][-1]:.0f} ns" for m in ("rk4", "heun"))
+                  + f" per trajectory step (load {got['load_avg_1min']:.1f})", flush=True)
+    print(f"\n4. lane form (4 lanes, omnibench/model/lanes.py) vs plain form (1 lane), CPU per trajectory "
+          f"step, median of {rounds}:")
+    for method in ("rk4", "heun"):
+        four, one = float(np.median(per[4][method])), float(np.median(per[1][method]))
+        print(f"   {method:4s}: {four:6.0f} ns vs {one:6.0f} ns: the lane form is {one / four:.2f}x faster")
     return 0
 
 

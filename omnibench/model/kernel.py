@@ -71,8 +71,12 @@ AUX_NAMES = (
 NAUX = len(AUX_NAMES)
 
 METHOD_HEUN, METHOD_RK4 = 0, 1
-# Trajectories per lane group: four doubles fill an AVX2 register.
-WIDTH = 4
+# Trajectories per lane group: four doubles fill an AVX2 register. OMNIBENCH_KERNEL_WIDTH=1
+# gives the plain form (one trajectory per group, hooks as written): benchmarks/simulate.py
+# --compare-width measures what the lane form buys.
+WIDTH = int(os.environ.get("OMNIBENCH_KERNEL_WIDTH", "4"))
+if WIDTH not in (1, 2, 4, 8):
+    raise ValueError(f"OMNIBENCH_KERNEL_WIDTH={WIDTH}: use 1, 2, 4 or 8")
 
 
 def alias_name(k: int, hook: str) -> str:
