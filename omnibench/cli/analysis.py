@@ -95,7 +95,10 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
     if not as_json:
         click.echo(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
         click.echo("Fitting through the simulator (weighted least squares)...")
-    result = fit(robot, obs, _free(free), procedures=procs)
+    from omnibench.cli.progress import working
+
+    with working("fitting"):
+        result = fit(robot, obs, _free(free), procedures=procs)
     wheels = {}
     if per_wheel and "sweep" in result.procedures and obs.sweep["wheel"].nunique() > 1:
         wheels = fit_per_wheel(result.robot, obs, [p for p in ("a", "b", "c")])

@@ -55,19 +55,10 @@ def _invoke(cmd: Any, name: str, args: list[str]) -> tuple[int, str, str]:
 
 def _timed_invoke(cmd: Any, name: str, args: list[str]) -> tuple[int, str, str]:
     """_invoke with a spinner and the elapsed time on a terminal (fit and diagnose take minutes)."""
-    import sys
-    import time
+    from omnibench.cli.progress import working
 
-    if not sys.stderr.isatty():
+    with working(f"{name} running"):
         return _invoke(cmd, name, args)
-    from rich.console import Console
-
-    console = Console(stderr=True)
-    t0 = time.monotonic()
-    with console.status(f"{name} running (progress below when it reports any)"):
-        out = _invoke(cmd, name, args)
-    console.print(f"   {name}: {time.monotonic() - t0:.0f} s")
-    return out
 
 
 def _options(cmd: Any) -> set[str]:
