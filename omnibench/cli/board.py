@@ -69,6 +69,8 @@ def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) 
 
     if not (0 < duration <= 86400 and 0 < every <= 86400):
         raise UserError(f"--duration and --every must be seconds in (0, 86400], got {duration:g} and {every:g}")
+    if not 1 <= rate <= 1000:
+        raise UserError(f"--rate {rate}: give the telemetry rate in Hz, in [1, 1000]")
     with Board.open(port) as board:
         board.configure(telemetry_hz=rate)
         next_print = -math.inf

@@ -31,7 +31,10 @@ def tfm(files: tuple[Path, ...], signs: str | None, out: Path, as_json: bool) ->
     from omnibench.runs import read_run
     from omnibench.runs.tfm import import_tfm, parse_signs
 
-    sign_map = parse_signs(signs) if signs else None
+    from omnibench.cli.params import check_out_folder
+
+    check_out_folder(out)
+    sign_map = parse_signs(signs) if signs is not None else None
     results = []
     for f in files:
         path = import_tfm(f, out, signs=sign_map)
