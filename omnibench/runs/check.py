@@ -30,8 +30,6 @@ def run_problem(path: Path) -> str | None:
         return "run.json is not a run description"
     if meta.get("format") != "omnibench-run":
         return f"run.json is not an omnibench run (format {meta.get('format')!r})"
-    if not isinstance(meta.get("robot"), dict):
-        return "run.json holds no robot description"
     if meta.get("status") != "complete":
         return f"run is {meta.get('status')!r}, not complete (resume it, or leave it out)"
     if not (path / "samples.csv").is_file():

@@ -57,19 +57,20 @@ ACCEPTABLE: dict[str, str] = {
     "diagnose --seed negative": "any integer seeds the fold assignment",
     "diagnose --seed huge": "any integer seeds the fold assignment",
     "sim serve --seed zero": "any integer seeds the simulator",
-    "lateral procedure directions.0.heading negative": "a heading of -1 deg is a direction",
     "forward --measurement-noise zero": "a noise-free simulated tape is allowed",
     "energy procedure trajectories.0.yaw_rate negative": "a negative yaw rate turns clockwise",
     "sim serve --world empty": "an empty world file is the default world (the board is served until stopped)",
     **{f"{c} procedure with the telemetry table missing": "[telemetry] is optional: 100 Hz, watchdog 0.5 s"
        for c in ("sweep", "forward", "lateral", "energy")},
+    **{f"{c} run.json robot missing": "analysis takes the robot from --robot/--model (imported 2019 runs "
+       "carry none)" for c in ("fit", "validate-energy", "predict", "diagnose", "plan")},
     **{f"{c} procedure.toml missing": "procedure.toml is a copy: run.json holds procedure_text (imported "
        "2019 runs have none)" for c in ("fit", "validate-energy", "predict", "diagnose", "plan")},
 }
 
 
 #: Acceptable cases that do a whole analysis (seconds of CPU): the benchmark runs them, the test not.
-SLOW = {"plan procedure.toml missing", "diagnose procedure.toml missing"}
+SLOW = {f"{c} {what} missing" for c in ("plan", "diagnose") for what in ("procedure.toml", "run.json robot")}
 
 
 @dataclass
@@ -508,6 +509,20 @@ def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
     add("energy --ammeter bad URL", ["energy", "--port", SIM, "--procedure", good_proc["energy"], "--out", new,
                                      "--ammeter", "nosuch://x"])
     add("commission --port bad URL", ["commission", "--port", "nosuch://x", "--out", str(root / "w.toml")])
+
+    # 10. Every command: an unknown option, a missing required value, an unknown command.
+    commands = ["simulate", "ports", "board info", "board monitor", "sim serve", "commission", "sweep", "forward",
+                "lateral", "energy", "campaign", "import tfm", "fit", "validate-energy", "predict", "diagnose", "plan"]
+    for c in commands:
+        add(f"{c} --nosuch", c.split() + ["--nosuch"], 5 if c == "sim serve" else HANG_S)
+    for c, opt in [("simulate", "--commands"), ("board info", "--port"), ("board monitor", "--port"),
+                   ("commission", "--port"), ("fit", "--out"), ("validate-energy", "--model"), ("predict", "--model"),
+                   ("diagnose", "--model"), ("plan", "--target-se"), ("sweep", "--procedure"), ("import tfm", "--signs")]:
+        add(f"{c} {opt} without its value", c.split() + [str(run), opt] if c in ("fit", "validate-energy", "predict",
+                                                                                  "diagnose") else c.split() + [opt])
+    add("an unknown command", ["nosuch"])
+    add("board with an unknown subcommand", ["board", "nosuch"])
+    add("import with an unknown format", ["import", "nosuch", files["binary"]])
     return out
 
 
