@@ -247,6 +247,29 @@ def make_fixture(root: Path) -> dict[str, Path]:
     return {"sweep": sweep, "energy": energy}
 
 
+def controls(root: Path, runs: dict[str, Path]) -> list[Case]:
+    """The cases' bases with good values: each must succeed, so a refusal in the survey is the
+    bad value's, not a broken base's (cheap bases only; `cases` writes the files they use)."""
+    files = root / "files"
+    model = str(ROOT / "omnibench" / "model" / "omnibot.toml")
+    out = [Case("control simulate", ["simulate", "--commands", str(files / "commands.csv"), "--out",
+                                     str(root / "control.csv")]),
+           Case("control board info", ["board", "info", "--port", "sim://?seed=1"]),
+           Case("control board monitor", ["board", "monitor", "--port", "sim://?seed=1", "--duration", "0.2"]),
+           Case("control fit", ["fit", str(runs["sweep"]), "--out", str(root / "control.toml")]),
+           Case("control validate-energy", ["validate-energy", str(runs["energy"]), "--model", model]),
+           Case("control predict", ["predict", str(runs["sweep"]), "--model", model])]
+    out += [Case(f"control {c} --dry-run", [c, "--port", SIM, "--out", str(root / "new"), "--dry-run", "--procedure",
+                                           str(files / f"good_{c}.toml")]) for c in PROCEDURES]
+    out += [Case(f"control {c} answers", ["forward", "--port", SIM, "--out", str(root / "new"), "--procedure",
+                                          str(files / "good_forward.toml"), "--answers", str(files / "answers" / a)])
+            for c, a in [("forward", "good.toml")]]
+    if TFM.is_dir():
+        out.append(Case("control import tfm", ["import", "tfm", str(TFM / "square_fast.mat"), "--out",
+                                               str(root / "new")]))
+    return out
+
+
 def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
     """Every bad input; the files they need are written under `root` (before any case runs)."""
     run, erun = runs["sweep"], runs["energy"]
@@ -466,6 +489,7 @@ def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
         "unknown step": 'actions = "done"\n[distance]\n0 = "0.3 m"\n7 = "1 m"\n',
         "actions not done": 'actions = "maybe"\n[distance]\n0 = "0.3 m"\n',
     }
+    write("answers/good.toml", 'actions = "done"\n[distance]\n0 = "0.3 m"\n')
     for kind, text in answers.items():
         add(f"forward --answers {kind}", ["forward", "--port", SIM, "--procedure", good_proc["forward"], "--out", new,
                                           "--answers", write(f"answers/{kind.replace(' ', '_')}.toml", text)])
@@ -578,6 +602,13 @@ def run_all(root: Path | None = None, select: Callable[[int, Case], bool] | None
         counts = {k: 0 for k in OUTCOMES}
         worst: list[str] = []
         all_cases = cases(root, runs)
+        for case in controls(root, runs):
+            before = _state(root)
+            code, err = run_cli(case.argv, 120)
+            if code != 0:
+                worst.append(f"refused: {case.name}: exit {code}: {err.strip()[-200:]}")
+            for p in sorted(set(_state(root)) - set(before), key=len, reverse=True):
+                (shutil.rmtree if os.path.isdir(p) and not os.path.islink(p) else os.remove)(p)
         for i, case in enumerate(all_cases):
             if select is not None and not select(i, case):
                 continue
