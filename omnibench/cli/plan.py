@@ -32,8 +32,8 @@ def parse_costs(text: str | None, robot_second: float) -> Any:
         if not 0 <= v <= 86_400:
             raise UserError(f"--cost {item!r}: a cost is a number of seconds in [0, 86400]")
         acts[key] = v
-    if not 0 <= robot_second <= 86_400:
-        raise UserError(f"--robot-second {robot_second:g}: a cost is a number of seconds in [0, 86400]")
+    if not 0 < robot_second <= 86_400:  # free robot time would make every step free: nothing to rank
+        raise UserError(f"--robot-second {robot_second:g}: give the cost of a robot second in s, in (0, 86400]")
     return Costs(actions=acts, robot_second=robot_second)
 
 
