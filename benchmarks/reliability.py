@@ -161,9 +161,11 @@ def bad_input() -> None:
     except ImportError:
         print("bad input: suite not available")
         return
+    t0 = time.process_time()
     counts, worst = run_all()
-    print("bad input: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    for line in worst[:10]:
+    print(f"bad input: cases {sum(counts.values())}, " + ", ".join(f"{k} {v}" for k, v in counts.items())
+          + f" ({time.process_time() - t0:.0f} s CPU)")
+    for line in worst:
         print(f"  {line}")
 
 

@@ -134,8 +134,10 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
 # --------------------------------------------------------------------------- analysis stages
 def parse_stages(text: str) -> tuple[str, ...]:
     """'fit,validate-energy' -> ('fit', 'validate-energy'); 'none' -> (); UserError otherwise."""
-    if text.strip().lower() in ("none", ""):
+    if text.strip().lower() == "none":
         return ()
+    if not text.strip():
+        raise UserError("--analysis '': give the stages (fit,validate-energy,diagnose) or none")
     names = tuple(t.strip() for t in text.split(",") if t.strip())
     for n in names:
         if n not in ANALYSIS:

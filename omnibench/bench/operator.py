@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -24,6 +23,7 @@ import numpy as np
 
 from omnibench.bench.procedure import Step, World
 from omnibench.errors import UserError
+from omnibench.files import read_toml
 from omnibench.model.units import to_si
 
 
@@ -83,12 +83,18 @@ class Operator(Protocol):
         ...
 
 
+MAX_LENGTH_M = 100.0  #: longest tape reading taken as a measurement (m)
+
+
 def parse_length(text: str, where: str) -> float:
     """'1.23', '1.23 m', '123 cm' -> metres; UserError naming `where` otherwise."""
     try:
-        return to_si(text.strip() if isinstance(text, str) else text, "m")
+        v = to_si(text.strip() if isinstance(text, str) else text, "m")
     except ValueError as exc:
         raise UserError(f"{where}: {exc}") from None
+    if abs(v) > MAX_LENGTH_M:
+        raise UserError(f"{where}: {text!r} is longer than any lab floor ({MAX_LENGTH_M:g} m)")
+    return v
 
 
 def parse_displacement(value: Any, where: str) -> tuple[float, float]:
@@ -197,20 +203,21 @@ class AnswersOperator:
 
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError:
-            raise UserError(f"{path}: answers file not found") from None
-        try:
-            self.data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise UserError(f"{path}: not valid TOML: {exc}") from None
+        self.data, _ = read_toml(path, "answers file")
+        if self.data.get("actions", "done") != "done":
+            raise UserError(f"{path}: actions = {self.data['actions']!r}; an answers file can only say \"done\"")
         unknown = set(self.data) - {"actions", "distance", "displacement"}
         if unknown:
             raise UserError(f"{path}: unknown key {sorted(unknown)[0]!r}; use actions, [distance], [displacement]")
 
     def check(self, steps: list[Step]) -> None:
         """Every step that needs a measurement has one (before any motor moves)."""
+        for table in ("distance", "displacement"):
+            known = {str(s.index) for s in steps if s.measure == table}
+            extra = sorted(set(self.data.get(table, {})) - known)
+            if extra:
+                raise UserError(f"{self.path}: [{table}] answers step {extra[0]}, which this procedure does not "
+                                f"measure (steps measured: {', '.join(sorted(known, key=int)) or 'none'})")
         for s in steps:
             if s.measure is not None:
                 table = self.data.get(s.measure, {})

@@ -30,6 +30,8 @@ from omnibench.model.units import to_si
 
 MAX_STEP_S = 3600.0   #: longest time a procedure file may give (s)
 MAX_COUNT = 1000      #: largest whole number (repetitions) a procedure file may give
+MAX_MASS_KG = 100.0   #: heaviest wheel or payload a procedure file may give
+MAX_LENGTH_M = 1.0    #: largest tolerance or tape noise a procedure file may give (m)
 
 PROCEDURES = ("upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories")
 
@@ -274,7 +276,7 @@ def _sim_operator(pf: ProcedureFile) -> dict[str, float]:
     t = pf.table("simulated_operator", required=False)
     pf.check_keys("simulated_operator", t, ["measurement_noise", "seed"])
     return {
-        "measurement_noise": pf.quantity("simulated_operator", t, "measurement_noise", "m", 0.002, lo=0),
+        "measurement_noise": pf.quantity("simulated_operator", t, "measurement_noise", "m", 0.002, lo=0, hi=MAX_LENGTH_M),
         "seed": pf.integer("simulated_operator", t, "seed", 1),
     }
 
@@ -283,7 +285,7 @@ def _no_slip(pf: ProcedureFile) -> dict[str, float]:
     t = pf.table("no_slip", required=False)
     pf.check_keys("no_slip", t, ["tolerance", "relative_tolerance"])
     return {
-        "tolerance": pf.quantity("no_slip", t, "tolerance", "m", 0.01, lo=0),
+        "tolerance": pf.quantity("no_slip", t, "tolerance", "m", 0.01, lo=0, hi=MAX_LENGTH_M),
         "relative_tolerance": pf.quantity("no_slip", t, "relative_tolerance", "1", 0.02, lo=0, hi=1),
     }
 
@@ -349,9 +351,9 @@ def expand_upside_down_sweep(pf: ProcedureFile, robot: Any) -> Plan:
         elif isinstance(raw, list):
             if len(raw) != 4:
                 pf.fail("wheel_sets", "wheel_mass", "give one mass or four (FL, FR, RL, RR)")
-            masses = tuple(pf.convert("wheel_sets", "wheel_mass", v, "kg", lo=0, lo_open=True) for v in raw)
+            masses = tuple(pf.convert("wheel_sets", "wheel_mass", v, "kg", lo=0, lo_open=True, hi=MAX_MASS_KG) for v in raw)
         else:
-            m = pf.convert("wheel_sets", "wheel_mass", raw, "kg", lo=0, lo_open=True)
+            m = pf.convert("wheel_sets", "wheel_mass", raw, "kg", lo=0, lo_open=True, hi=MAX_MASS_KG)
             masses = (m, m, m, m)
         wheel_sets.append((name, masses))
     ss = pf.table("steady_state", required=False)
@@ -465,13 +467,13 @@ def expand_lateral_runs(pf: ProcedureFile, robot: Any) -> Plan:
         if not isinstance(d, dict):
             pf.fail(None, "directions", "each direction must be a table {heading, speed}")
         pf.check_keys("directions", d, ["heading", "speed"])
-        heading = pf.quantity("directions", d, "heading", "rad", None)
+        heading = pf.quantity("directions", d, "heading", "rad", None, lo=-2 * math.pi, hi=2 * math.pi)
         speed = pf.quantity("directions", d, "speed", "m/s", None, lo=0, lo_open=True)
         directions.append((heading, speed))
     if "payloads" not in pf.data:
         payloads = [0.0]
     else:
-        payloads = pf.quantity_list(None, pf.data, "payloads", "kg", lo=0)
+        payloads = pf.quantity_list(None, pf.data, "payloads", "kg", lo=0, hi=MAX_MASS_KG)
     steps: list[Step] = []
     for payload in payloads:
         world = World("ground", "standard", None, payload)
@@ -554,7 +556,7 @@ def expand_energy_trajectories(pf: ProcedureFile, robot: Any) -> Plan:
     pf.check_keys("run", run_t, ["repetitions", "settle", "payload"])
     reps = pf.integer("run", run_t, "repetitions", 1, lo=1)
     settle = pf.quantity("run", run_t, "settle", "s", 1.0, lo=0)
-    payload = pf.quantity("run", run_t, "payload", "kg", 0.0, lo=0)
+    payload = pf.quantity("run", run_t, "payload", "kg", 0.0, lo=0, hi=MAX_MASS_KG)
     am = pf.table("ammeter", required=False)
     pf.check_keys("ammeter", am, ["source", "required"])
     source = am.get("source", "board")

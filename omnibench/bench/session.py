@@ -206,7 +206,12 @@ def run_command(
         run_dir = Path(resume)
         if not (run_dir / "run.json").is_file():
             raise UserError(f"{run_dir}: not a run directory (no run.json) to resume")
-        meta = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+        try:
+            meta = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise UserError(f"{run_dir / 'run.json'}: unreadable ({type(exc).__name__}); cannot resume") from None
+        if not isinstance(meta, dict) or meta.get("format") != "omnibench-run":
+            raise UserError(f"{run_dir / 'run.json'}: not an omnibench run description; cannot resume")
         if meta.get("procedure") != procedure:
             raise UserError(f"{run_dir}: is a {meta.get('procedure')} run; resume it with its own command")
         if meta.get("status") == "complete":
@@ -227,6 +232,8 @@ def run_command(
         if (out_path / "run.json").is_file():
             raise UserError(f"--out {out_path}: is a run directory; give the folder that should hold the new run, "
                             "or --resume it")
+    if measurement_noise is not None and not 0 <= measurement_noise <= 1:
+        raise UserError(f"--measurement-noise {measurement_noise:g}: give the tape's noise in metres, in [0, 1]")
     if operator not in OPERATORS:
         raise UserError(f"--operator {operator!r}: choose {', '.join(OPERATORS)}")
     from omnibench.bench.wiring import wiring_for

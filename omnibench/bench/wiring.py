@@ -18,13 +18,13 @@ with which sign, which encoder channel reads it and with which sign, and which s
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 from omnibench.bench.board import Telemetry
 from omnibench.errors import UserError
+from omnibench.files import read_toml
 
 WHEELS = ("FL", "FR", "RL", "RR")
 DEFAULT_FILE = Path("wiring.toml")
@@ -84,13 +84,12 @@ def _signs(d: dict, key: str, where: str) -> tuple[int, int, int, int]:
 def load_wiring(path: str | Path) -> Wiring:
     """Read a wiring file; UserError naming it on any problem."""
     p = Path(path)
-    try:
-        d = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UserError(f"wiring file {p} not found (write it with omnibench commission)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"wiring file {p} is not valid TOML: {exc}") from None
+    if not p.is_file() and not p.exists():
+        raise UserError(f"wiring file {p} not found (write it with omnibench commission)")
+    d, _ = read_toml(p, "wiring file")
     where = f"wiring file {p}"
+    if "motor_channel" not in d:
+        raise UserError(f"{where}: no motor_channel (not a file written by omnibench commission)")
     return Wiring(motor_channel=_perm(d, "motor_channel", where), motor_sign=_signs(d, "motor_sign", where),
                   encoder_channel=_perm(d, "encoder_channel", where),
                   encoder_sign=_signs(d, "encoder_sign", where),

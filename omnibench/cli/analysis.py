@@ -10,6 +10,8 @@ from typing import Any
 
 import click
 
+from omnibench.cli.params import NonEmptyPath, check_out_folder
+
 from omnibench.errors import UserError
 from omnibench.runs.check import check_output, checked_runs
 
@@ -49,10 +51,10 @@ def _free(text: str | None) -> list[str] | None:
 
 
 @click.command("fit")
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--robot", "robot_file", type=click.Path(path_type=Path), default=None,
+@click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
+@click.option("--robot", "robot_file", type=NonEmptyPath(path_type=Path), default=None,
               help="Robot or model file to start from (default: the shipped Omnibot).")
-@click.option("--out", "out", type=click.Path(path_type=Path), default=Path("model.toml"), show_default=True,
+@click.option("--out", "out", type=NonEmptyPath(path_type=Path), default=Path("model.toml"), show_default=True,
               help="Model file to write: the robot file with the fitted values and a [fit] table.")
 @click.option("--free", "free", default=None, metavar="P1,P2,...",
               help="Parameters to fit (paper symbols, or <effect>.<param>). Default: what the runs measure.")
@@ -62,7 +64,7 @@ def _free(text: str | None) -> list[str] | None:
                    "--free I_w fits the wheel inertia to step responses).")
 @click.option("--per-wheel/--no-per-wheel", default=True, show_default=True,
               help="Also fit the upside-down sweep of each wheel on its own (a, b, c per wheel).")
-@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+@click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the figures (sweep with fitted curves, residuals).")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
@@ -80,6 +82,7 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
     robot, _ = _robot(robot_file)
     good = checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True))
     check_output(out, good)
+    _check_plots(plots)
     obs = Observations.from_runs(good, robot)
     procs = None
     if procedures is not None:
@@ -153,11 +156,16 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
         click.echo(f"figure: {f}")
 
 
+def _check_plots(plots: Path | None) -> None:
+    if plots is not None:
+        check_out_folder(plots, "--plots")
+
+
 @click.command("validate-energy")
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--model", "model", type=click.Path(path_type=Path), required=True,
+@click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
+@click.option("--model", "model", type=NonEmptyPath(path_type=Path), required=True,
               help="Model file from `omnibench fit` (or a robot file).")
-@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+@click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the current-trace figure.")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
@@ -168,6 +176,7 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.validate import validate_energy
 
+    _check_plots(plots)
     robot, _ = _robot(model)
     obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
                                  robot)
@@ -193,10 +202,10 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
 
 
 @click.command("predict")
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--model", "model", type=click.Path(path_type=Path), required=True,
+@click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
+@click.option("--model", "model", type=NonEmptyPath(path_type=Path), required=True,
               help="Model file from `omnibench fit` (or a robot file).")
-@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+@click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the measured-vs-model figures.")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
 @click.option("--baseline", is_flag=True,
@@ -211,6 +220,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.predict import predict_runs
 
+    _check_plots(plots)
     robot, _ = _robot(model)
     obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
                                  robot)

@@ -8,6 +8,8 @@ import time
 
 import click
 
+from omnibench.cli.params import FINITE
+
 from omnibench.errors import BoardError, UserError
 
 PORT_HELP = "Serial port or URL: /dev/ttyACM0, sim://?seed=1, socket://host:port, hwgrep://VID:PID."
@@ -20,12 +22,14 @@ def command() -> None:
 
 @command.command(name="info")
 @click.option("--port", required=True, help=PORT_HELP)
-@click.option("--timeout", type=float, default=3.0, show_default=True, help="Handshake timeout, s.")
+@click.option("--timeout", type=FINITE, default=3.0, show_default=True, help="Handshake timeout, s.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def info(port: str, timeout: float, as_json: bool) -> None:
     """Handshake with the board and print its identity, protocol and link round trip."""
     from omnibench.link.board import Board
 
+    if not 0 < timeout <= 60:
+        raise UserError(f"--timeout {timeout:g}: give the handshake timeout in s, in (0, 60]")
     with Board.open(port, timeout=timeout, strict=False) as board:
         hello = board.hello
         assert hello is not None
@@ -55,9 +59,9 @@ def _print_info(out: dict, port: str) -> None:
 
 @command.command(name="monitor")
 @click.option("--port", required=True, help=PORT_HELP)
-@click.option("--duration", type=float, default=10.0, show_default=True, help="Board time to watch, s.")
+@click.option("--duration", type=FINITE, default=10.0, show_default=True, help="Board time to watch, s.")
 @click.option("--rate", type=int, default=50, show_default=True, help="Telemetry rate, Hz.")
-@click.option("--every", type=float, default=0.5, show_default=True, help="Print a line every this many s of board time.")
+@click.option("--every", type=FINITE, default=0.5, show_default=True, help="Print a line every this many s of board time.")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per printed sample.")
 def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) -> None:
     """Show live telemetry (motors stay stopped): encoders, currents, battery, faults."""
@@ -65,6 +69,8 @@ def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) 
 
     if not (0 < duration <= 86400 and 0 < every <= 86400):
         raise UserError(f"--duration and --every must be seconds in (0, 86400], got {duration:g} and {every:g}")
+    if not 1 <= rate <= 1000:
+        raise UserError(f"--rate {rate}: give the telemetry rate in Hz, in [1, 1000]")
     with Board.open(port) as board:
         board.configure(telemetry_hz=rate)
         next_print = -math.inf

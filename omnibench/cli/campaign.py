@@ -8,17 +8,19 @@ from pathlib import Path
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 from omnibench.cli.plan import design_options
 from omnibench.errors import UserError
 
 
 @click.command("campaign")
 @click.option("--port", metavar="URL", help="Serial device, or sim://... for the simulated robot.")
-@click.option("--out", type=click.Path(path_type=Path), default=Path("campaign"), show_default=True,
+@click.option("--out", type=NonEmptyPath(path_type=Path), default=Path("campaign"), show_default=True,
               help="Folder for the runs, the analysis outputs, the plots and report.md.")
-@click.option("--robot", "robot_file", type=click.Path(path_type=Path), metavar="FILE",
+@click.option("--robot", "robot_file", type=NonEmptyPath(path_type=Path), metavar="FILE",
               help="Robot file (TOML). Default: the real Omnibot's numbers.")
-@click.option("--procedures", "procedures_dir", type=click.Path(path_type=Path, file_okay=False), metavar="DIR",
+@click.option("--procedures", "procedures_dir", type=NonEmptyPath(path_type=Path, file_okay=False), metavar="DIR",
               help="Folder holding the four procedure files (<procedure>.toml). Default: the shipped ones.")
 @click.option("--ammeter", metavar="URL", default=None,
               help="SCPI ammeter on its own serial URL for the energy runs (default: the board's sensor).")
@@ -35,7 +37,7 @@ from omnibench.errors import UserError
 @click.option("--adaptive", is_flag=True,
               help="Plan, run, fit, re-plan until every --target-se is met or the budget is spent (docs/design.md).")
 @design_options
-@click.option("--budget-minutes", type=float, default=None, help="--adaptive: at most this many minutes of robot time.")
+@click.option("--budget-minutes", type=FINITE, default=None, help="--adaptive: at most this many minutes of robot time.")
 @click.option("--budget-actions", type=int, default=None, help="--adaptive: at most this many operator actions.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
             ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
@@ -58,24 +60,30 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         if level >= 0:
             click.echo(line, err=as_json)
 
+    from omnibench.cli.params import check_out_folder
+    from omnibench.cli.plan import check_limits, parse_costs
+
+    check_out_folder(out)
+    check_limits(floor_length, budget_minutes, budget_actions)
+    costs = parse_costs(cost, robot_second)
+    stages = parse_stages(analysis)
     if adaptive:
         from omnibench.analysis.design.space import Limits
         from omnibench.bench.adaptive import run_adaptive_campaign
-        from omnibench.cli.plan import parse_costs
 
         if resume:
             raise UserError("--adaptive does not resume a campaign yet: start it in a new --out")
         res = run_adaptive_campaign(port or "", out, target_se or "", robot_file=robot_file,
-                                    procedures_dir=procedures_dir, costs=parse_costs(cost, robot_second),
+                                    procedures_dir=procedures_dir, costs=costs,
                                     limits=Limits(floor_length=floor_length), current=not no_current,
                                     budget_minutes=budget_minutes, budget_actions=budget_actions, echo=echo,
-                                    stages=parse_stages(analysis), analyse=run_analysis)
+                                    stages=stages, analyse=run_analysis)
     elif target_se:
         raise UserError("--target-se needs --adaptive")
     else:
         res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                            progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
-                           stages=parse_stages(analysis), resume=resume,
+                           stages=stages, resume=resume,
                            without_current=without_current, operator=who, analyse=run_analysis, plot=plot,
                            verbosity=level)
     if as_json:

@@ -9,11 +9,13 @@ from pathlib import Path
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 from omnibench.errors import UserError
 
 
 def _candidates(text: str | None) -> list[str] | None:
-    if not text:
+    if text is None:
         return None
     from omnibench.effects import EFFECTS
 
@@ -25,7 +27,7 @@ def _candidates(text: str | None) -> list[str] | None:
 
 
 def _procedures(text: str | None) -> list[str] | None:
-    if not text:
+    if text is None:
         return None
     from omnibench.analysis.observations import PROCEDURES
 
@@ -37,19 +39,19 @@ def _procedures(text: str | None) -> list[str] | None:
 
 
 @click.command("diagnose")
-@click.option("--model", "model", required=True, type=click.Path(path_type=Path),
+@click.option("--model", "model", required=True, type=NonEmptyPath(path_type=Path),
               help="Robot TOML of the declared model (e.g. the one `omnibench fit` wrote).")
-@click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--out", "out", type=click.Path(path_type=Path), default=None,
+@click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
+@click.option("--out", "out", type=NonEmptyPath(path_type=Path), default=None,
               help="Write the extended model (refitted coefficients + added effects) to this TOML file.")
-@click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
+@click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for PNG plots: residual vs the variable that exposed each effect, before/after.")
 @click.option("--json", "as_json", is_flag=True, help="Print the diagnosis as JSON.")
 @click.option("--candidates", default=None, metavar="NAME,...",
               help="Only these candidate effects (default: the whole library, docs/effects.md).")
 @click.option("--procedures", default=None, metavar="NAME,...",
               help="Only these observation tables (sweep, forward, lateral, energy, step_response).")
-@click.option("--alpha", default=1e-3, show_default=True, type=float,
+@click.option("--alpha", default=1e-3, show_default=True, type=FINITE,
               help="Family-wise significance level for adding an effect.")
 @click.option("--max-effects", default=3, show_default=True, type=int, help="Add at most this many effects.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the held-out fold assignment.")
@@ -72,6 +74,14 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
     from omnibench.analysis.observations import Observations
     from omnibench.model import load_robot
 
+    from omnibench.cli.params import check_out_folder
+    from omnibench.runs.check import check_output, checked_runs
+
+    runs = tuple(checked_runs(runs))
+    if out is not None:
+        check_output(out, runs)
+    if plots is not None:
+        check_out_folder(plots, "--plots")
     robot = load_robot(model)
     obs = Observations.from_runs(runs, robot=robot)
     if not obs.procedures():

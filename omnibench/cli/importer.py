@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from omnibench.cli.params import NonEmptyPath
+
 
 @click.group("import")
 def command() -> None:
@@ -14,14 +16,14 @@ def command() -> None:
 
 
 @command.command("tfm")
-@click.argument("files", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("files", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
 @click.option("--signs", default=None, metavar="S1,S2,S3,S4",
               help="Per-wheel sign map (FL,FR,RL,RR) applied to the logged encoder counts so a "
                    "positive duty gives a positive wheel speed. Default: +1,-1,+1,-1 for the raw "
                    "square-wave logs, +1,+1,+1,+1 for results_jacked.mat and results_ground_x.mat "
                    "(already corrected), read off the data for the RC log (inputs.mat).")
 @click.option("--out", "out", default=Path("runs"), show_default=True,
-              type=click.Path(path_type=Path), help="Folder that receives the run directories.")
+              type=NonEmptyPath(path_type=Path), help="Folder that receives the run directories.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def tfm(files: tuple[Path, ...], signs: str | None, out: Path, as_json: bool) -> None:
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
@@ -29,7 +31,10 @@ def tfm(files: tuple[Path, ...], signs: str | None, out: Path, as_json: bool) ->
     from omnibench.runs import read_run
     from omnibench.runs.tfm import import_tfm, parse_signs
 
-    sign_map = parse_signs(signs) if signs else None
+    from omnibench.cli.params import check_out_folder
+
+    check_out_folder(out)
+    sign_map = parse_signs(signs) if signs is not None else None
     results = []
     for f in files:
         path = import_tfm(f, out, signs=sign_map)

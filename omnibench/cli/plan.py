@@ -10,6 +10,8 @@ from typing import Any
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 from omnibench.errors import UserError
 
 
@@ -27,12 +29,22 @@ def parse_costs(text: str | None, robot_second: float) -> Any:
             v = float(val.strip().removesuffix("s").strip())
         except ValueError:
             raise UserError(f"--cost {item!r}: expected ACTION=SECONDS, e.g. wheels=120") from None
-        if not v >= 0 or not math.isfinite(v):
-            raise UserError(f"--cost {item!r}: a cost is a number of seconds >= 0")
+        if not 0 <= v <= 86_400:
+            raise UserError(f"--cost {item!r}: a cost is a number of seconds in [0, 86400]")
         acts[key] = v
-    if not robot_second >= 0 or not math.isfinite(robot_second):
-        raise UserError("--robot-second: a cost is a number of seconds >= 0")
+    if not 0 < robot_second <= 86_400:  # free robot time would make every step free: nothing to rank
+        raise UserError(f"--robot-second {robot_second:g}: give the cost of a robot second in s, in (0, 86400]")
     return Costs(actions=acts, robot_second=robot_second)
+
+
+def check_limits(floor_length: float, budget_minutes: float | None, budget_actions: int | None) -> None:
+    """Refuse a floor (m) or budget (minutes, actions) no lab has, before any work starts."""
+    if not 0 < floor_length <= 100:
+        raise UserError(f"--floor-length {floor_length:g}: give the metres of floor, in (0, 100]")
+    if budget_minutes is not None and not 0 < budget_minutes <= 10_000:
+        raise UserError(f"--budget-minutes {budget_minutes:g}: give minutes of robot time, in (0, 10000]")
+    if budget_actions is not None and not 0 < budget_actions <= 10_000:
+        raise UserError(f"--budget-actions {budget_actions}: give a number of operator actions, in [1, 10000]")
 
 
 def design_options(f: Any) -> Any:
@@ -43,9 +55,9 @@ def design_options(f: Any) -> Any:
         click.option("--cost", "cost", default=None, metavar="ACTION=S,...",
                      help="Operator action costs in seconds (flip=60, wheels=180, payload=20, measure=30 "
                           "by default; measure = start mark and tape)."),
-        click.option("--robot-second", type=float, default=3.0, show_default=True,
+        click.option("--robot-second", type=FINITE, default=3.0, show_default=True,
                      help="Cost of one second of robot time, in seconds (battery, wear, the operator waiting)."),
-        click.option("--floor-length", type=float, default=2.5, show_default=True,
+        click.option("--floor-length", type=FINITE, default=2.5, show_default=True,
                      help="Metres of straight floor a run may use from its start mark."),
         click.option("--no-current", is_flag=True, help="The board logs no motor current (plan without it)."),
     ]):
@@ -54,15 +66,15 @@ def design_options(f: Any) -> Any:
 
 
 @click.command("plan")
-@click.argument("runs", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--model", "model_file", type=click.Path(path_type=Path), default=None,
+@click.argument("runs", nargs=-1, type=NonEmptyPath(path_type=Path))
+@click.option("--model", "model_file", type=NonEmptyPath(path_type=Path), default=None,
               help="Model or robot file (default: the shipped Omnibot); its values are the starting point.")
 @design_options
-@click.option("--procedures", "procedures_dir", type=click.Path(path_type=Path, file_okay=False), metavar="DIR",
+@click.option("--procedures", "procedures_dir", type=NonEmptyPath(path_type=Path, file_okay=False), metavar="DIR",
               default=None, help="The lab's procedure files (wheel sets, payloads, settings). Default: the shipped ones.")
-@click.option("--out", type=click.Path(path_type=Path), default=Path("plan"), show_default=True,
+@click.option("--out", type=NonEmptyPath(path_type=Path), default=Path("plan"), show_default=True,
               help="Folder for the planned procedure files and plan.json.")
-@click.option("--budget-minutes", type=float, default=None, help="At most this many minutes of robot time.")
+@click.option("--budget-minutes", type=FINITE, default=None, help="At most this many minutes of robot time.")
 @click.option("--budget-actions", type=int, default=None, help="At most this many operator actions.")
 @click.option("--json", "as_json", is_flag=True, help="Print the plan as JSON.")
 def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | None, cost: str | None,
@@ -82,6 +94,12 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
     from omnibench.bench.campaign import procedure_files
     from omnibench.model import default_robot
 
+    from omnibench.cli.params import check_out_folder
+    from omnibench.runs.check import checked_runs
+
+    check_out_folder(out)
+    runs = tuple(checked_runs(runs)) if runs else ()
+    check_limits(floor_length, budget_minutes, budget_actions)
     robot = load_model(model_file)[0] if model_file else default_robot()
     targets = parse_targets(target_se or "", robot)
     costs = parse_costs(cost, robot_second)

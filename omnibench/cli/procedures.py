@@ -14,6 +14,8 @@ from typing import Any
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 PROCEDURE_OF = {
     "sweep": "upside_down_sweep",
     "forward": "forward_runs",
@@ -35,18 +37,18 @@ def _make(name: str) -> click.Command:
     @click.command(name, help=HELP[name] + f"\n\nDefault procedure file: procedures/{procedure}.toml "
                                            "(copy it and edit). Use --port sim:// for the simulated robot.")
     @click.option("--port", metavar="URL", help="Serial device (/dev/ttyACM0), or sim://... for the simulated robot.")
-    @click.option("--procedure", "procedure_file", type=click.Path(path_type=Path), metavar="FILE",
+    @click.option("--procedure", "procedure_file", type=NonEmptyPath(path_type=Path), metavar="FILE",
                   help=f"Procedure file (TOML). Default: the shipped {procedure}.toml.")
-    @click.option("--robot", "robot_file", type=click.Path(path_type=Path), metavar="FILE",
+    @click.option("--robot", "robot_file", type=NonEmptyPath(path_type=Path), metavar="FILE",
                   help="Robot file (TOML). Default: the real Omnibot's numbers.")
-    @click.option("--out", type=click.Path(path_type=Path), default=Path("runs"), show_default=True,
+    @click.option("--out", type=NonEmptyPath(path_type=Path), default=Path("runs"), show_default=True,
                   help="Folder that receives the run directory.")
     @click.option("--dry-run", is_flag=True, help="Print the plan, its duration and peak voltage/current; move nothing.")
-    @click.option("--resume", type=click.Path(path_type=Path), metavar="RUN_DIR",
+    @click.option("--resume", type=NonEmptyPath(path_type=Path), metavar="RUN_DIR",
                   help="Continue an interrupted run from its last complete step.")
-    @click.option("--answers", type=click.Path(path_type=Path), metavar="FILE",
+    @click.option("--answers", type=NonEmptyPath(path_type=Path), metavar="FILE",
                   help="Operator answers (TOML) for unattended runs.")
-    @click.option("--measurement-noise", type=float, default=None, metavar="M",
+    @click.option("--measurement-noise", type=FINITE, default=None, metavar="M",
                   help="Simulation only: the simulated operator's tape noise, m (default from the procedure file).")
     @click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
                   show_default=True, help="Who answers the prompts: auto = the simulated operator on a simulator, "
@@ -54,7 +56,7 @@ def _make(name: str) -> click.Command:
                   "your answers).")
     @click.option("--without-current", is_flag=True, hidden=name != "energy",
                   help="Drive the energy trajectories even with no battery current source (no energy is measured).")
-    @click.option("--wiring", type=click.Path(path_type=Path), metavar="FILE", default=None,
+    @click.option("--wiring", type=NonEmptyPath(path_type=Path), metavar="FILE", default=None,
                   help="Wiring file from omnibench commission. Default: ./wiring.toml when it exists.")
     @click.option("--plot", is_flag=True, help="Also a live matplotlib window of the wheel speeds (needs a display).")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")

@@ -7,6 +7,8 @@ from urllib.parse import urlencode
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 from omnibench.errors import UserError
 
 
@@ -16,17 +18,17 @@ def command() -> None:
 
 
 @command.command(name="serve")
-@click.option("--world", "world_file", type=click.Path(dir_okay=False), help="World file (TOML): mode, masses, payload, sensors, hidden effects, faults.")
+@click.option("--world", "world_file", type=NonEmptyPath(dir_okay=False), help="World file (TOML): mode, masses, payload, sensors, hidden effects, faults.")
 @click.option("--seed", type=int, default=None, help="Seed for sensor noise, faults and boot ids.")
 @click.option("--clock", type=click.Choice(["realtime", "fast"]), default="realtime", show_default=True,
               help="realtime: board time follows the wall clock (x --speed); fast: as fast as the host reads.")
-@click.option("--speed", type=float, default=None, help="Simulated seconds per wall second: always on the realtime clock, while telemetry is "
+@click.option("--speed", type=FINITE, default=None, help="Simulated seconds per wall second: always on the realtime clock, while telemetry is "
               "off on the fast clock (a person at a prompt).")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any sim:// URL parameter, e.g. --set mode=upside_down --set drop=0.01 (repeatable).")
-@click.option("--status-file", type=click.Path(dir_okay=False), help="Keep the board's duties/faults/state in this JSON file.")
+@click.option("--status-file", type=NonEmptyPath(dir_okay=False), help="Keep the board's duties/faults/state in this JSON file.")
 @click.option("--ammeter", is_flag=True, help="Also serve a SCPI ammeter on a second pseudo-terminal (its path is line 2).")
-@click.option("--firmware", type=click.Path(dir_okay=False), default=None,
+@click.option("--firmware", type=NonEmptyPath(dir_okay=False), default=None,
               help="Run this board firmware (.elf, make -C firmware) in simavr instead of the simulated board.")
 def serve(world_file: str | None, seed: int | None, clock: str, speed: float | None, settings: tuple[str, ...],
           status_file: str | None, ammeter: bool, firmware: str | None) -> None:

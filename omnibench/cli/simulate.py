@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from omnibench.cli.params import FINITE, NonEmptyPath
+
 from omnibench.errors import UserError
 
 OUTPUT_COLUMNS = (
@@ -18,17 +20,17 @@ OUTPUT_COLUMNS = (
 
 
 @click.command("simulate")
-@click.option("--robot", "robot_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--robot", "robot_path", type=NonEmptyPath(dir_okay=False), default=None,
               help="Robot description (TOML). Default: the real Omnibot's numbers.")
-@click.option("--commands", "commands_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--commands", "commands_path", required=True, type=NonEmptyPath(dir_okay=False),
               help="CSV with columns t,u1,u2,u3,u4 (s, duty in [-1,1]), held until the next row.")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
+@click.option("--out", "out_path", required=True, type=NonEmptyPath(dir_okay=False), help="Output CSV.")
 @click.option("--upside-down", is_flag=True, help="Robot on blocks, wheels in the air (procedure III.i).")
-@click.option("--payload", type=float, default=0.0, show_default=True, help="Mass added on top, kg.")
-@click.option("--duration", type=float, default=None,
+@click.option("--payload", type=FINITE, default=0.0, show_default=True, help="Mass added on top, kg.")
+@click.option("--duration", type=FINITE, default=None,
               help="Simulated time, s. Default: 1 s after the last command.")
-@click.option("--rate", type=float, default=100.0, show_default=True, help="Output rows per second, Hz.")
-@click.option("--dt", type=float, default=1e-3, show_default=True, help="Physics step, s.")
+@click.option("--rate", type=FINITE, default=100.0, show_default=True, help="Output rows per second, Hz.")
+@click.option("--dt", type=FINITE, default=1e-3, show_default=True, help="Physics step, s.")
 @click.option("--energy-breakdown", is_flag=True,
               help="Also write where the battery energy went (copper, gear, each friction term, KE).")
 def command(robot_path, commands_path, out_path, upside_down, payload, duration, rate, dt,

@@ -83,7 +83,7 @@ def _load(path: Path) -> dict[str, Any]:
     import scipy.io
 
     if not path.is_file():
-        raise UserError(f"{path}: no such file")
+        raise UserError(f"{path}: {'is a folder, not a log file' if path.is_dir() else 'no such file'}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -170,6 +169,10 @@ def _faults(base: FaultConfig, d: Mapping[str, Any], where: str) -> FaultConfig:
     return replace(base, **changes)
 
 
+MAX_PAYLOAD_KG = 1000.0  #: heaviest payload a world may put on the robot
+MAX_SPEED = 1000.0       #: fastest realtime clock (simulated s per wall s)
+
+
 def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None) -> World:
     """World with the settings in `d` (from a file or a URL) applied."""
     changes: dict[str, Any] = {}
@@ -185,8 +188,8 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
             changes["mode"] = v
         elif k == "payload":
             x = _float(v, f"{where} payload")
-            if x < 0:
-                raise UserError(f"{where}: payload (kg) must not be negative")
+            if not 0 <= x <= MAX_PAYLOAD_KG:
+                raise UserError(f"{where}: payload must be a mass in [0, {MAX_PAYLOAD_KG:g}] kg, not {x:g}")
             changes["payload"] = x
         elif k == "wheel_mass":
             vals = v if isinstance(v, (list, tuple)) else str(v).split(",")
@@ -197,11 +200,17 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
         elif k == "effects":
             if not isinstance(v, Mapping) or not all(isinstance(p, Mapping) for p in v.values()):
                 raise UserError(f"{where}: [effects] must be tables {{effect name: {{param: value}}}}")
-            from omnibench.effects.library import effect_names
+            from omnibench.effects.library import EFFECTS, effect_names
 
             unknown = [n for n in v if n not in effect_names()]
             if unknown:
                 raise UserError(f"{where}: unknown effect {unknown[0]!r}; known: {', '.join(effect_names())}")
+            for n, p in v.items():
+                known = set(EFFECTS[n].term.defaults())
+                bad = sorted(set(p) - known)
+                if bad:
+                    raise UserError(f"{where}: effect {n} has no parameter {bad[0]!r}; "
+                                    f"it has {', '.join(sorted(known))}")
             changes["effects"] = {n: {pk: _float(pv, f"{where} effects.{n}.{pk}") for pk, pv in p.items()}
                                   for n, p in v.items()}
         elif k == "sensors":
@@ -209,15 +218,18 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
         elif k == "faults":
             changes["faults"] = _faults(world.faults, v, where)
         elif k == "seed":
-            changes["seed"] = int(_float(v, f"{where} seed"))
+            x = _float(v, f"{where} seed")
+            if x != int(x):
+                raise UserError(f"{where}: seed must be a whole number, not {v!r}")
+            changes["seed"] = int(x)
         elif k == "clock":
             if v not in CLOCKS:
                 raise UserError(f"{where}: clock must be fast or realtime, not {v!r}")
             changes["clock"] = v
         elif k == "speed":
             x = _float(v, f"{where} speed")
-            if x <= 0:
-                raise UserError(f"{where}: speed must be positive")
+            if not 0 < x <= MAX_SPEED:
+                raise UserError(f"{where}: speed must be in (0, {MAX_SPEED:g}] simulated s per wall s, not {x:g}")
             changes["speed"] = x
         elif k == "dt":
             x = _float(v, f"{where} dt")
@@ -250,13 +262,9 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
 def load_world(path: str | Path, base: World | None = None) -> World:
     """Read a world file (TOML); UserError naming the file and the problem."""
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise UserError(f"world file {p} not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise UserError(f"world file {p} is not valid TOML: {exc}") from None
+    from omnibench.files import read_toml
+
+    doc, _ = read_toml(p, "world file")
     return _apply(base or World(), doc, f"world file {p}", p.parent)
 
 

@@ -1,37 +1,99 @@
-"""Bad input across the commands: each case must give one clear line and a non-zero exit,
-write over nothing and leave the disk as it was (issue 12). Used by test_bad_input.py and
-benchmarks/reliability.py.
+"""The bad-input survey (issue 12): every command, every option, the bad kinds that apply.
 
-Outcomes: clear (non-zero exit, one line on stderr, no traceback, no "internal error"),
-silent (exit 0: bad input accepted), internal ("internal error" or a traceback), hang (no
-answer within HANG_S), overwrite (a file of an existing run changed).
+Cases are generated from tables (options x bad values, procedure keys x bad units, run
+corruptions x commands that read runs, ...), run in this process through `omnibench.cli.main`
+and classified automatically:
+
+- clear: non-zero exit, one line on stderr starting "omnibench: error:" (or "omnibench:"), no
+  traceback, no "internal error", nothing on disk changed;
+- handled: exit 0 on an input that is in fact acceptable; only cases listed in ACCEPTABLE (with
+  the reason) may be handled, and their outputs must hold no NaN;
+- silent: exit 0 on bad input (or a NaN in what an ACCEPTABLE case wrote);
+- internal: "internal error", a traceback, or more than one line on stderr;
+- hang: no answer within HANG_S;
+- overwrite: a file that existed changed or vanished, or a refused command left anything new.
+
+Used by tests/reliability/test_bad_input.py (a subset) and benchmarks/reliability.py (all).
 """
 
 from __future__ import annotations
 
-import hashlib
 import io
+import os
 import shutil
 import signal
 import tempfile
+import tomllib
 from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
-HANG_S = 20
-PROC = Path(__file__).parent / "procedures" / "stall_sweep.toml"
+import tomli_w
+
+HANG_S = 15
+HERE = Path(__file__).parent
+PROC = HERE / "procedures" / "stall_sweep.toml"
 ROOT = Path(__file__).resolve().parents[2]
+OUTCOMES = ("clear", "handled", "silent", "internal", "hang", "overwrite")
+SIM = "sim://?seed=3"
+TFM = Path("/work/shared/data/omnibot-tfm")  # the real 2019 logs (read-only), for `import tfm`
+
+# The bad values of an option, by the kind of value it takes.
+FLOAT_BAD = {"nan": "nan", "inf": "inf", "-inf": "-inf", "negative": "-1", "zero": "0", "huge": "1e9",
+             "empty": "", "word": "abc"}
+INT_BAD = {"negative": "-1", "zero": "0", "huge": "10000000", "empty": "", "word": "abc", "fraction": "0.5"}
+# Bad unit strings for a procedure key in unit U ("{u}" is replaced by a unit of the right dimension).
+UNIT_BAD = {"computes": "9**9**9 {u}", "nan": "nan {u}", "inf": "inf {u}", "negative": "-1 {u}",
+            "huge": "1e9 {u}", "empty": "", "wrong dimension": "1 {w}", "word": "abc"}
+COUNT_BAD = {"huge": 10**7, "negative": -1, "zero": 0, "fraction": 1.5, "word": "two", "nan": float("nan")}
+
+# Inputs that are in fact acceptable: (case name -> why exit 0 is right).
+ACCEPTABLE: dict[str, str] = {
+    "simulate --payload zero": "no payload is the default",
+    "diagnose --seed zero": "0 is the default seed",
+    "diagnose --seed negative": "any integer seeds the fold assignment",
+    "diagnose --seed huge": "any integer seeds the fold assignment",
+    "sim serve --seed zero": "any integer seeds the simulator",
+    "forward --measurement-noise zero": "a noise-free simulated tape is allowed",
+    "energy procedure trajectories.0.yaw_rate negative": "a negative yaw rate turns clockwise",
+    "sim serve --world empty": "an empty world file is the default world (the board is served until stopped)",
+    **{f"{c} procedure with the telemetry table missing": "[telemetry] is optional: 100 Hz, watchdog 0.5 s"
+       for c in ("sweep", "forward", "lateral", "energy")},
+    **{f"{c} run.json robot missing": "analysis takes the robot from --robot/--model (imported 2019 runs "
+       "carry none)" for c in ("fit", "validate-energy", "predict", "diagnose", "plan")},
+    **{f"{c} procedure.toml missing": "procedure.toml is a copy: run.json holds procedure_text (imported "
+       "2019 runs have none)" for c in ("fit", "validate-energy", "predict", "diagnose", "plan")},
+}
+
+
+#: Acceptable cases that do a whole analysis (seconds of CPU): the benchmark runs them, the test not.
+SLOW = {f"{c} {what} missing" for c in ("plan", "diagnose") for what in ("procedure.toml", "run.json robot")}
+
+
+@dataclass
+class Case:
+    name: str
+    argv: list[str]
+    timeout: float = HANG_S
 
 
 class _Hang(BaseException):
     pass
 
 
-def _digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
+def _state(root: Path) -> dict[str, tuple[int, int]]:
+    """(size, mtime_ns) of every file and folder under root: a change shows any write."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for n in dirnames + filenames:
+            p = os.path.join(dirpath, n)
+            st = os.lstat(p)
+            out[p] = (st.st_size if n in filenames else -1, st.st_mtime_ns if n in filenames else 0)
+    return out
 
 
-def run_cli(args: list[str]) -> tuple[int | None, str]:
+def run_cli(args: list[str], timeout: float = HANG_S) -> tuple[int | None, str]:
     """(exit code or None if it hung, stderr) of `omnibench ARGS` in this process."""
     from omnibench.cli import main
 
@@ -41,7 +103,7 @@ def run_cli(args: list[str]) -> tuple[int | None, str]:
         raise _Hang()
 
     old = signal.signal(signal.SIGALRM, alarm)
-    signal.alarm(HANG_S)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
     code: int | None = 0
     try:
         with redirect_stderr(err), redirect_stdout(out):
@@ -51,26 +113,170 @@ def run_cli(args: list[str]) -> tuple[int | None, str]:
     except _Hang:
         code = None
     finally:
-        signal.alarm(0)
+        signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
     return code, err.getvalue()
 
 
-def make_fixture(root: Path) -> Path:
-    """A complete small sweep run under root/runs (sim://, fast clock)."""
-    code, err = run_cli(["sweep", "--port", "sim://?seed=3", "--procedure", str(PROC), "--out", str(root / "runs")])
+def _energy_procedure() -> str:
+    return ('procedure = "energy_trajectories"\n[run]\nrepetitions = 1\nsettle = "0.2 s"\npayload = "0 kg"\n'
+            '[[trajectories]]\nname = "spin"\nkind = "spin"\nyaw_rate = "90 deg/s"\nduration = "0.5 s"\n'
+            '[telemetry]\nrate = "100 Hz"\nwatchdog = "0.5 s"\n')
+
+
+def _forward_procedure() -> str:
+    return ('procedure = "forward_runs"\n[runs]\nduties = [0.3]\ndirections = ["forward"]\nduration = "0.5 s"\n'
+            'repetitions = 1\nsettle = "0.2 s"\n[no_slip]\ntolerance = "1 cm"\nrelative_tolerance = 0.02\n'
+            '[simulated_operator]\nmeasurement_noise = "2 mm"\nseed = 1\n[telemetry]\nrate = "100 Hz"\n'
+            'watchdog = "0.5 s"\n')
+
+
+def _lateral_procedure() -> str:
+    return ('procedure = "lateral_runs"\npayloads = ["0 kg"]\n[runs]\nduration = "0.5 s"\nrepetitions = 1\n'
+            'both_ways = false\nsettle = "0.2 s"\n[[directions]]\nheading = "30 deg"\nspeed = "0.3 m/s"\n'
+            '[no_slip]\ntolerance = "1 cm"\nrelative_tolerance = 0.02\n[telemetry]\nrate = "100 Hz"\n'
+            'watchdog = "0.5 s"\n')
+
+
+PROCEDURES = {"sweep": PROC.read_text(), "forward": _forward_procedure(), "lateral": _lateral_procedure(),
+              "energy": _energy_procedure()}
+# Procedure keys that carry a unit: (command, path in the TOML, unit, a unit of another dimension).
+UNIT_KEYS = [
+    ("sweep", ("steady_state", "window"), "s", "kg"), ("sweep", ("steady_state", "min_hold"), "s", "kg"),
+    ("sweep", ("steady_state", "average"), "s", "kg"), ("sweep", ("steady_state", "max_hold"), "s", "kg"),
+    ("sweep", ("rest", "between_directions"), "s", "kg"), ("sweep", ("telemetry", "rate"), "Hz", "m"),
+    ("sweep", ("telemetry", "watchdog"), "s", "kg"), ("sweep", ("wheel_sets", 0, "wheel_mass"), "kg", "s"),
+    ("forward", ("runs", "duration"), "s", "kg"), ("forward", ("runs", "settle"), "s", "kg"),
+    ("forward", ("no_slip", "tolerance"), "cm", "s"), ("forward", ("simulated_operator", "measurement_noise"), "mm", "s"),
+    ("forward", ("telemetry", "rate"), "Hz", "m"), ("forward", ("telemetry", "watchdog"), "s", "kg"),
+    ("lateral", ("payloads", 0), "kg", "s"), ("lateral", ("runs", "duration"), "s", "kg"),
+    ("lateral", ("runs", "settle"), "s", "kg"), ("lateral", ("directions", 0, "heading"), "deg", "kg"),
+    ("lateral", ("directions", 0, "speed"), "m/s", "kg"),
+    ("energy", ("run", "settle"), "s", "kg"), ("energy", ("run", "payload"), "kg", "s"),
+    ("energy", ("trajectories", 0, "yaw_rate"), "deg/s", "kg"), ("energy", ("trajectories", 0, "duration"), "s", "kg"),
+]
+COUNT_KEYS = [("forward", ("runs", "repetitions")), ("lateral", ("runs", "repetitions")),
+              ("energy", ("run", "repetitions"))]
+DUTY_BAD = {"nan": [float("nan")], "above one": [2.0], "huge": [1e9], "word": ["a"], "none": [], "not a list": 0.1}
+
+
+def _edit_toml(text: str, path: tuple, value) -> str:
+    data = tomllib.loads(text)
+    node = data
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    return tomli_w.dumps(data)
+
+
+# Ways a run directory can be broken: name -> edit of a copy of a good run.
+def _set_json(d: Path, **kv) -> None:
+    import json
+    doc = json.loads((d / "run.json").read_text())
+    doc.update(kv)
+    (d / "run.json").write_text(json.dumps(doc))
+
+
+RUN_DAMAGE: dict[str, Callable[[Path], None]] = {
+    "run.json broken": lambda d: (d / "run.json").write_text("{ broken"),
+    "run.json empty": lambda d: (d / "run.json").write_text(""),
+    "run.json a list": lambda d: (d / "run.json").write_text("[1, 2]"),
+    "run.json missing": lambda d: (d / "run.json").unlink(),
+    "run.json binary": lambda d: (d / "run.json").write_bytes(bytes(range(256))),
+    "run.json other format": lambda d: _set_json(d, format="something-else"),
+    "run.json unknown procedure": lambda d: _set_json(d, procedure="nosuch"),
+    "run.json status running": lambda d: _set_json(d, status="running"),
+    "run.json status aborted": lambda d: _set_json(d, status="aborted"),
+    "run.json robot missing": lambda d: _set_json(d, robot=None),
+    "steps.jsonl garbage line": lambda d: (d / "steps.jsonl").write_text(
+        '{"step": 0}\nnot json\n' + (d / "steps.jsonl").read_text()),
+    "steps.jsonl missing": lambda d: (d / "steps.jsonl").unlink(),
+    "steps.jsonl empty": lambda d: (d / "steps.jsonl").write_text(""),
+    "steps.jsonl a step twice": lambda d: (d / "steps.jsonl").write_text(
+        (d / "steps.jsonl").read_text() + (d / "steps.jsonl").read_text().splitlines()[0] + "\n"),
+    "samples.csv cut": lambda d: (d / "samples.csv").write_text((d / "samples.csv").read_text()[:400]),
+    "samples.csv cut mid-line": lambda d: (d / "samples.csv").write_text(
+        (d / "samples.csv").read_text()[: len((d / "samples.csv").read_text()) // 2]),
+    "samples.csv missing": lambda d: (d / "samples.csv").unlink(),
+    "samples.csv empty": lambda d: (d / "samples.csv").write_text(""),
+    "samples.csv header only": lambda d: (d / "samples.csv").write_text(
+        (d / "samples.csv").read_text().splitlines()[0] + "\n"),
+    "samples.csv binary": lambda d: (d / "samples.csv").write_bytes(bytes(range(256)) * 8),
+    "samples.csv nan values": lambda d: (d / "samples.csv").write_text("\n".join(
+        [ln if i < 3 else ",".join(x if j < 4 else "nan" for j, x in enumerate(ln.split(",")))
+         for i, ln in enumerate((d / "samples.csv").read_text().splitlines())]) + "\n"),
+    "samples.csv renamed column": lambda d: (d / "samples.csv").write_text(
+        (d / "samples.csv").read_text().replace("enc1", "encX", 1)),
+    "events.jsonl malformed": lambda d: (d / "events.jsonl").write_text("{{{\n"),
+    "procedure.toml missing": lambda d: (d / "procedure.toml").unlink(),
+}
+
+
+def _files(root: Path) -> dict[str, str]:
+    """Bad files, written once: name -> path."""
+    f = root / "files"
+    f.mkdir(parents=True, exist_ok=True)
+    (f / "a directory").mkdir(exist_ok=True)
+    items = {
+        "binary": bytes(range(256)) * 4,
+        "empty": b"",
+        "bad toml": b"this is = = not toml [[\n",
+        "text": b"hello\n",
+    }
+    out = {"missing": str(f / "no such file.toml"), "directory": str(f / "a directory")}
+    for name, data in items.items():
+        p = f / (name.replace(" ", "_") + ".toml")
+        p.write_bytes(data)
+        out[name] = str(p)
+    return out
+
+
+def make_fixture(root: Path) -> dict[str, Path]:
+    """A complete small sweep and energy run under root/runs (sim://, fast clock)."""
+    runs = root / "runs"
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(runs / "sweep")], 120)
     assert code == 0, err
-    (run,) = (root / "runs").iterdir()
-    return run
+    ep = root / "energy.toml"
+    ep.write_text(_energy_procedure())
+    code, err = run_cli(["energy", "--port", SIM, "--procedure", str(ep), "--out", str(runs / "energy")], 120)
+    assert code == 0, err
+    (sweep,) = (runs / "sweep").iterdir()
+    (energy,) = (runs / "energy").iterdir()
+    return {"sweep": sweep, "energy": energy}
 
 
-def cases(root: Path, run: Path) -> list[tuple[str, list[str]]]:
-    """(name, argv) of every bad input; files they need are written under `root`."""
-    def copy(name: str, edit) -> str:
-        d = root / "bad" / name
-        shutil.copytree(run, d)
-        edit(d)
-        return str(d)
+def controls(root: Path, runs: dict[str, Path]) -> list[Case]:
+    """The cases' bases with good values: each must succeed, so a refusal in the survey is the
+    bad value's, not a broken base's (cheap bases only; `cases` writes the files they use)."""
+    files = root / "files"
+    model = str(ROOT / "omnibench" / "model" / "omnibot.toml")
+    out = [Case("control simulate", ["simulate", "--commands", str(files / "commands.csv"), "--out",
+                                     str(root / "control.csv")]),
+           Case("control board info", ["board", "info", "--port", "sim://?seed=1"]),
+           Case("control board monitor", ["board", "monitor", "--port", "sim://?seed=1", "--duration", "0.2"]),
+           Case("control fit", ["fit", str(runs["sweep"]), "--out", str(root / "control.toml")]),
+           Case("control validate-energy", ["validate-energy", str(runs["energy"]), "--model", model]),
+           Case("control predict", ["predict", str(runs["sweep"]), "--model", model])]
+    out += [Case(f"control {c} --dry-run", [c, "--port", SIM, "--out", str(root / "new"), "--dry-run", "--procedure",
+                                           str(files / f"good_{c}.toml")]) for c in PROCEDURES]
+    out += [Case(f"control {c} answers", ["forward", "--port", SIM, "--out", str(root / "new"), "--procedure",
+                                          str(files / "good_forward.toml"), "--answers", str(files / "answers" / a)])
+            for c, a in [("forward", "good.toml")]]
+    if TFM.is_dir():
+        out.append(Case("control import tfm", ["import", "tfm", str(TFM / "square_fast.mat"), "--out",
+                                               str(root / "new")]))
+    return out
+
+
+def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
+    """Every bad input; the files they need are written under `root` (before any case runs)."""
+    run, erun = runs["sweep"], runs["energy"]
+    files = _files(root)
+    out: list[Case] = []
+
+    def add(name: str, argv: list[str], timeout: float = HANG_S) -> None:
+        # an acceptable input may do the command's whole work (plan: ~10 s of CPU)
+        out.append(Case(name, argv, 120 if name in ACCEPTABLE and not name.startswith("sim serve") else timeout))
 
     def write(name: str, text: str | bytes) -> str:
         p = root / "files" / name
@@ -78,95 +284,354 @@ def cases(root: Path, run: Path) -> list[tuple[str, list[str]]]:
         (p.write_bytes if isinstance(text, bytes) else p.write_text)(text)
         return str(p)
 
-    proc_text = PROC.read_text()
-    hold = 'max_hold = "2 s"'
-    out = str(root / "model.toml")
-    sweep = ["sweep", "--port", "sim://?seed=3", "--out", str(root / "new"), "--procedure"]
-    return [
-        ("fit --out the run's run.json", ["fit", str(run), "--out", str(run / "run.json")]),
-        ("fit --out the run's samples.csv", ["fit", str(run), "--out", str(run / "samples.csv")]),
-        ("fit --out a directory", ["fit", str(run), "--out", str(run)]),
-        ("fit the same run twice", ["fit", str(run), str(run), "--out", out]),
-        ("fit a run with broken run.json", ["fit", copy("json", lambda d: (d / "run.json").write_text("{ broken")),
-                                            "--out", out]),
-        ("fit a run with a garbage steps.jsonl line",
-         ["fit", copy("steps", lambda d: (d / "steps.jsonl").write_text("{\"step\": 0}\nnot json\n" +
-                                                                        (run / "steps.jsonl").read_text())), "--out", out]),
-        ("fit a run with a cut samples.csv",
-         ["fit", copy("cut", lambda d: (d / "samples.csv").write_text((run / "samples.csv").read_text()[:400])),
-          "--out", out]),
-        ("fit a run with samples.csv missing", ["fit", copy("nosamples", lambda d: (d / "samples.csv").unlink()),
-                                                "--out", out]),
-        ("fit an unfinished run", ["fit", copy("running", lambda d: (d / "run.json").write_text(
-            (run / "run.json").read_text().replace('"status": "complete"', '"status": "running"'))), "--out", out]),
-        ("fit a binary file as a run", ["fit", write("bin.dat", bytes(range(256))), "--out", out]),
-        ("validate-energy without samples.csv",
-         ["validate-energy", copy("ve", lambda d: (d / "samples.csv").unlink()), "--model", write("m.toml", "")]),
-        ("procedure unit that computes", sweep + [write("p1.toml", proc_text.replace(hold, 'max_hold = "9**9**9 s"')),
-                                                  "--dry-run"]),
-        ("procedure unit with NaN", sweep + [write("p2.toml", proc_text.replace(hold, 'max_hold = "nan s"')),
-                                             "--dry-run"]),
-        ("procedure hold of 1e9 s", sweep + [write("p3.toml", proc_text.replace(hold, 'max_hold = "1e9 s"')),
-                                             "--dry-run"]),
-        ("procedure duty NaN", sweep + [write("p4.toml", proc_text.replace("[0.06, 0.1, 0.15, 0.2]", "[nan, 0.1]")),
-                                        "--dry-run"]),
-        ("forward with 10^7 repetitions",
-         ["forward", "--port", "sim://?seed=3", "--out", str(root / "new"), "--dry-run", "--procedure",
-          write("f1.toml", (ROOT / "procedures" / "forward_runs.toml").read_text().replace(
-              "repetitions = ", "repetitions = 10000000 # "))]),
-        ("procedure binary file", sweep + [write("p5.toml", bytes(range(256))), "--dry-run"]),
-        ("sweep --out an existing file", ["sweep", "--port", "sim://?seed=3", "--procedure", str(PROC), "--out",
-                                          str(run / "run.json")]),
-        ("sweep --out a run directory", ["sweep", "--port", "sim://?seed=3", "--procedure", str(PROC), "--out",
-                                         str(run)]),
-        ("resume a complete run", ["sweep", "--port", "sim://?seed=3", "--resume", str(run)]),
-        ("board monitor --duration nan", ["board", "monitor", "--port", "sim://?seed=1", "--duration", "nan"]),
-        ("board monitor --duration -1", ["board", "monitor", "--port", "sim://?seed=1", "--duration", "-1"]),
-        ("board monitor --every inf", ["board", "monitor", "--port", "sim://?seed=1", "--every", "inf"]),
-        ("sim overcurrent_limit=nan", ["board", "info", "--port", "sim://?seed=1&overcurrent_limit=nan"]),
-        ("sim unknown effect", ["board", "info", "--port", "sim://?seed=1&effects.nosuch.k=1"]),
-        ("simulate --payload 1e9", ["simulate", "--commands", write("c.csv", "t,u1,u2,u3,u4\n0,0.2,0.2,0.2,0.2\n"),
-                                    "--out", str(root / "sim.csv"), "--payload", "1e9"]),
-        ("simulate --duration nan", ["simulate", "--commands", write("c2.csv", "t,u1,u2,u3,u4\n0,0.2,0.2,0.2,0.2\n"),
-                                     "--out", str(root / "sim2.csv"), "--duration", "nan"]),
-        ("simulate --out the run's samples.csv",
-         ["simulate", "--commands", write("c3.csv", "t,u1,u2,u3,u4\n0,0.2,0.2,0.2,0.2\n"),
-          "--out", str(run / "samples.csv")]),
+    new = str(root / "new")
+    model = str(ROOT / "omnibench" / "model" / "omnibot.toml")
+    cmds_csv = write("commands.csv", "t,u1,u2,u3,u4\n0,0.2,0.2,0.2,0.2\n")
+    good_proc = {k: write(f"good_{k}.toml", v) for k, v in PROCEDURES.items()}
+
+    # 1. Numeric options x bad numbers (each command with its other inputs good).
+    float_opts = [
+        ("simulate", ["simulate", "--commands", cmds_csv, "--out", str(root / "sim.csv")],
+         ["--payload", "--duration", "--rate", "--dt"]),
+        ("board monitor", ["board", "monitor", "--port", "sim://?seed=1"], ["--duration", "--every"]),
+        ("board info", ["board", "info", "--port", "sim://?seed=1"], ["--timeout"]),
+        ("plan", ["plan", str(run), "--out", str(root / "plan"), "--target-se", "a=5%"],
+         ["--robot-second", "--floor-length", "--budget-minutes"]),
+        ("campaign", ["campaign", "--port", SIM, "--out", str(root / "campaign"), "--adaptive",
+                      "--target-se", "a=5%"], ["--robot-second", "--floor-length", "--budget-minutes"]),
+        ("diagnose", ["diagnose", str(run), "--model", model], ["--alpha"]),
+        ("sweep", ["sweep", "--port", SIM, "--procedure", good_proc["sweep"], "--out", new, "--dry-run"],
+         ["--measurement-noise"]),
+        ("forward", ["forward", "--port", SIM, "--procedure", good_proc["forward"], "--out", new],
+         ["--measurement-noise"]),
+        ("sim serve", ["sim", "serve", "--clock", "fast"], ["--speed"]),
     ]
+    for cmd, base, opts in float_opts:
+        for opt in opts:
+            for kind, v in FLOAT_BAD.items():
+                if (cmd, opt, kind) == ("sweep", "--measurement-noise", "zero"):
+                    continue  # acceptable (forward has the case)
+                add(f"{cmd} {opt} {kind}", base + [opt, v], 5 if cmd == "sim serve" else HANG_S)
+    int_opts = [
+        ("board monitor", ["board", "monitor", "--port", "sim://?seed=1", "--duration", "0.2"], ["--rate"]),
+        ("plan", ["plan", str(run), "--out", str(root / "plan"), "--target-se", "a=5%"], ["--budget-actions"]),
+        ("campaign", ["campaign", "--port", SIM, "--out", str(root / "campaign"), "--adaptive",
+                      "--target-se", "a=5%"], ["--budget-actions"]),
+        ("diagnose", ["diagnose", str(run), "--model", model, "--candidates", "nosuch"], ["--max-effects", "--seed"]),
+        ("sim serve", ["sim", "serve", "--clock", "fast", "--world", files["missing"]], ["--seed"]),
+    ]
+    for cmd, base, opts in int_opts:
+        for opt in opts:
+            for kind, v in INT_BAD.items():
+                if opt == "--seed" and kind in ("negative", "huge", "zero"):
+                    continue  # any integer seeds (the base is refused anyway: listed nowhere)
+                add(f"{cmd} {opt} {kind}", base + [opt, v], 5 if cmd == "sim serve" else HANG_S)
+
+    # 2. Lists of names or P=V pairs.
+    lists = {
+        "--target-se": ["a=nan", "a=-1%", "a=abc", "nosuch=1%", "a=", "=1%", "a", "a=inf", "a=0"],
+        "--cost": ["flip=nan", "flip=-1", "nosuch=1", "flip=abc", "flip", "flip=inf", "flip=1e9"],
+    }
+    for opt, values in lists.items():
+        for v in values:
+            add(f"plan {opt} {v}", ["plan", str(run), "--out", str(root / "plan"), "--target-se", "a=5%", opt, v])
+            add(f"campaign --adaptive {opt} {v}", ["campaign", "--port", SIM, "--out", str(root / "campaign"),
+                                                    "--adaptive", "--target-se", "a=5%", opt, v])
+    for v in ["nosuch", "", "a,nosuch", "stribeck_friction.nosuch"]:
+        add(f"fit --free {v!r}", ["fit", str(run), "--out", str(root / "m.toml"), "--free", v])
+    for v in ["nosuch", "", "sweep,nosuch"]:
+        add(f"fit --procedures {v!r}", ["fit", str(run), "--out", str(root / "m.toml"), "--procedures", v])
+        add(f"diagnose --procedures {v!r}", ["diagnose", str(run), "--model", model, "--procedures", v])
+    for v in ["nosuch_effect", "", "stribeck_friction,nosuch"]:
+        add(f"diagnose --candidates {v!r}", ["diagnose", str(run), "--model", model, "--candidates", v])
+    for v in ["nosuch", "fit,nosuch", ""]:
+        add(f"campaign --analysis {v!r}", ["campaign", "--port", SIM, "--out", str(root / "campaign"), "--analysis", v])
+    for v in ["1,1,1", "2,1,1,1", "nan,1,1,1", "a,b,c,d", "", "1,1,1,1,1", "0,1,1,1"]:
+        mat = str(TFM / "square_fast.mat") if TFM.is_dir() else files["binary"]
+        add(f"import tfm --signs {v!r}", ["import", "tfm", mat, "--out", new, "--signs", v])
+
+    # 3. Input files x bad files (each option that reads a file).
+    file_opts = [
+        ("fit --robot", ["fit", str(run), "--out", str(root / "m.toml"), "--robot"]),
+        ("validate-energy --model", ["validate-energy", str(erun), "--model"]),
+        ("predict --model", ["predict", str(run), "--model"]),
+        ("diagnose --model", ["diagnose", str(run), "--model"]),
+        ("plan --model", ["plan", "--out", str(root / "plan"), "--target-se", "a=5%", "--model"]),
+        ("simulate --robot", ["simulate", "--commands", cmds_csv, "--out", str(root / "sim.csv"), "--robot"]),
+        ("simulate --commands", ["simulate", "--out", str(root / "sim.csv"), "--commands"]),
+        ("sweep --robot", ["sweep", "--port", SIM, "--procedure", good_proc["sweep"], "--out", new, "--dry-run",
+                           "--robot"]),
+        ("sweep --wiring", ["sweep", "--port", SIM, "--procedure", good_proc["sweep"], "--out", new, "--wiring"]),
+        ("forward --answers", ["forward", "--port", SIM, "--procedure", good_proc["forward"], "--out", new,
+                               "--answers"]),
+        ("commission --robot", ["commission", "--port", SIM, "--out", str(root / "w.toml"), "--robot"]),
+        ("campaign --robot", ["campaign", "--port", SIM, "--out", str(root / "campaign"), "--robot"]),
+        ("sim serve --world", ["sim", "serve", "--clock", "fast", "--world"]),
+        ("import tfm FILE", ["import", "tfm", "--out", new]),
+    ]
+    for cmd in ("sweep", "forward", "lateral", "energy"):
+        file_opts.append((f"{cmd} --procedure", [cmd, "--port", SIM, "--out", new, "--dry-run", "--procedure"]))
+    for name, base in file_opts:
+        for kind, path in files.items():
+            add(f"{name} {kind}", base + [path], 5 if name.startswith("sim serve") else HANG_S)
+    for kind in ("missing", "binary", "directory"):
+        add(f"sim serve --firmware {kind}", ["sim", "serve", "--clock", "fast", "--firmware", files[kind]], 5)
+    add("campaign --procedures a file", ["campaign", "--port", SIM, "--out", str(root / "campaign"),
+                                         "--procedures", files["text"]])
+    add("campaign --procedures missing", ["campaign", "--port", SIM, "--out", str(root / "campaign"),
+                                          "--procedures", files["missing"]])
+    add("plan --procedures a file", ["plan", str(run), "--out", str(root / "plan"), "--target-se", "a=5%",
+                                     "--procedures", files["text"]])
+    add("plan --procedures an empty folder", ["plan", str(run), "--out", str(root / "plan"), "--target-se", "a=5%",
+                                              "--procedures", files["directory"]])
+
+    # 4. Outputs pointed at a run's own files, an existing file where a folder goes, a folder where a file goes.
+    out_opts = [
+        ("fit --out", ["fit", str(run), "--out"], "file"),
+        ("diagnose --out", ["diagnose", str(run), "--model", model, "--out"], "file"),
+        ("simulate --out", ["simulate", "--commands", cmds_csv, "--out"], "file"),
+        ("commission --out", ["commission", "--port", SIM, "--out"], "file"),
+        ("fit --plots", ["fit", str(run), "--out", str(root / "m.toml"), "--plots"], "dir"),
+        ("predict --plots", ["predict", str(run), "--model", model, "--plots"], "dir"),
+        ("plan --out", ["plan", str(run), "--target-se", "a=5%", "--out"], "dir"),
+        ("sweep --out", ["sweep", "--port", SIM, "--procedure", good_proc["sweep"], "--out"], "dir"),
+        ("energy --out", ["energy", "--port", SIM, "--procedure", good_proc["energy"], "--out"], "dir"),
+        ("import tfm --out", ["import", "tfm", str(TFM / "square_fast.mat"), "--out"], "dir"),
+        ("campaign --out", ["campaign", "--port", SIM, "--out"], "dir"),
+    ]
+    for name, base, want in out_opts:
+        if name.startswith("import") and not TFM.is_dir():
+            continue  # needs a real 2019 log to refuse for the output alone
+        targets = {"the run's run.json": str(run / "run.json"), "the run's samples.csv": str(run / "samples.csv"),
+                   "a run directory": str(run), "empty": ""}
+        targets["an existing file" if want == "dir" else "a directory"] = (
+            files["text"] if want == "dir" else files["directory"])
+        for kind, target in targets.items():
+            add(f"{name} {kind}", base + [target])
+
+    # 5. Runs: every damage x every command that reads runs (and --resume).
+    readers = [
+        ("fit", lambda r: ["fit", r, "--out", str(root / "m.toml")], "sweep"),
+        ("validate-energy", lambda r: ["validate-energy", r, "--model", model], "energy"),
+        ("predict", lambda r: ["predict", r, "--model", model], "sweep"),
+        ("diagnose", lambda r: ["diagnose", r, "--model", model, "--procedures", "sweep"], "sweep"),
+        ("plan", lambda r: ["plan", r, "--target-se", "a=5%", "--out", str(root / "plan")], "sweep"),
+        ("sweep --resume", lambda r: ["sweep", "--port", SIM, "--out", new, "--resume", r], "sweep"),
+    ]
+    damaged: dict[tuple[str, str], str] = {}
+    for damage, edit in RUN_DAMAGE.items():
+        for which in ("sweep", "energy"):
+            d = root / "bad" / which / damage.replace(" ", "_")
+            shutil.copytree(runs[which], d)
+            edit(d)
+            damaged[(which, damage)] = str(d)
+    for name, argv, which in readers:
+        for damage in RUN_DAMAGE:
+            if name == "sweep --resume" and damage in ("run.json status running", "run.json status aborted"):
+                continue  # an interrupted run: resuming it is the point
+            add(f"{name} {damage}", argv(damaged[(which, damage)]))
+        add(f"{name} a binary file", argv(files["binary"]))
+        add(f"{name} a missing run", argv(files["missing"]))
+        add(f"{name} an empty folder", argv(files["directory"]))
+        add(f"{name} the same run twice", argv(str(runs[which])) + [str(runs[which])])
+        if name != "sweep --resume":
+            add(f"{name} --skip-bad with nothing left" if name not in ("plan",) else f"{name} a cut run",
+                argv(damaged[(which, "samples.csv cut")]) + (["--skip-bad"] if name != "plan" else []))
+    add("fit a run of the wrong procedure", ["fit", str(erun), "--out", str(root / "m.toml"), "--procedures", "sweep"])
+    add("validate-energy a sweep run", ["validate-energy", str(run), "--model", model])
+    add("energy --resume a sweep run", ["energy", "--port", SIM, "--out", new, "--resume", str(run)])
+    add("sweep --resume a complete run", ["sweep", "--port", SIM, "--out", new, "--resume", str(run)])
+
+    # 6. Procedure files: unit keys x bad unit strings, counts, duty lists, whole-file faults.
+    for cmd, path, unit, wrong in UNIT_KEYS:
+        for kind, tpl in UNIT_BAD.items():
+            if unit == "deg" and kind == "negative":
+                continue
+            p = write(f"proc/{cmd}-{'.'.join(map(str, path))}-{kind}.toml",
+                      _edit_toml(PROCEDURES[cmd], path, tpl.format(u=unit, w=wrong)))
+            add(f"{cmd} procedure {'.'.join(map(str, path))} {kind}",
+                [cmd, "--port", SIM, "--out", new, "--dry-run", "--procedure", p])
+    for cmd, path in COUNT_KEYS:
+        for kind, v in COUNT_BAD.items():
+            p = write(f"proc/{cmd}-count-{kind}.toml", _edit_toml(PROCEDURES[cmd], path, v))
+            add(f"{cmd} procedure {'.'.join(path)} {kind}", [cmd, "--port", SIM, "--out", new, "--dry-run",
+                                                             "--procedure", p])
+    for cmd, path in (("sweep", ("sweep", "duties")), ("forward", ("runs", "duties"))):
+        for kind, v in DUTY_BAD.items():
+            p = write(f"proc/{cmd}-duties-{kind}.toml", _edit_toml(PROCEDURES[cmd], path, v))
+            add(f"{cmd} procedure duties {kind}", [cmd, "--port", SIM, "--out", new, "--dry-run", "--procedure", p])
+    for cmd, text in PROCEDURES.items():
+        other = "forward" if cmd != "forward" else "sweep"
+        variants = {
+            "of another procedure": PROCEDURES[other],
+            "with an unknown key": text + "\nnosuch_key = 1\n",
+            "without a procedure name": "\n".join(ln for ln in text.splitlines() if not ln.startswith("procedure")),
+            "with the telemetry table missing": text.split("[telemetry]")[0],
+            "with a duplicate key": text + '\nprocedure = "x"\n',
+        }
+        for kind, t in variants.items():
+            add(f"{cmd} procedure {kind}", [cmd, "--port", SIM, "--out", new, "--dry-run", "--procedure",
+                                            write(f"proc/{cmd}-{kind.replace(' ', '_')}.toml", t)])
+    tp = write("proc/energy-kind.toml", _edit_toml(PROCEDURES["energy"], ("trajectories", 0, "kind"), "zigzag"))
+    add("energy procedure unknown trajectory kind", ["energy", "--port", SIM, "--out", new, "--dry-run", "--procedure", tp])
+
+    # 7. Answers files (forward runs: step 0 is the one run).
+    answers = {
+        "distance computes": 'actions = "done"\n[distance]\n0 = "9**9**9 m"\n',
+        "distance nan": 'actions = "done"\n[distance]\n0 = "nan m"\n',
+        "distance huge": 'actions = "done"\n[distance]\n0 = "1e9 m"\n',
+        "distance wrong dimension": 'actions = "done"\n[distance]\n0 = "1 kg"\n',
+        "distance a word": 'actions = "done"\n[distance]\n0 = "far"\n',
+        "distance missing": 'actions = "done"\n',
+        "unknown step": 'actions = "done"\n[distance]\n0 = "0.3 m"\n7 = "1 m"\n',
+        "actions not done": 'actions = "maybe"\n[distance]\n0 = "0.3 m"\n',
+    }
+    write("answers/good.toml", 'actions = "done"\n[distance]\n0 = "0.3 m"\n')
+    for kind, text in answers.items():
+        add(f"forward --answers {kind}", ["forward", "--port", SIM, "--procedure", good_proc["forward"], "--out", new,
+                                          "--answers", write(f"answers/{kind.replace(' ', '_')}.toml", text)])
+
+    # 8. Simulator URLs and world files (board info opens the port; sim serve reads the world).
+    url_bad = {
+        "overcurrent_limit": ["nan", "-1", "inf", "abc"], "payload": ["nan", "-1", "1e9", "abc"],
+        "mode": ["sideways", ""], "wheel_mass": ["1,2", "nan,1,1,1", "-1,1,1,1"], "seed": ["abc", "1.5"],
+        "drop": ["2", "-0.1", "nan"], "dt": ["0", "nan", "1"], "speed": ["0", "nan", "-1"], "clock": ["slow"],
+        "wiring": ["1,1,2,3", "1,2,3", "5,1,2,3"], "reset_at": ["nan", "-1"], "effects.nosuch.k": ["1"],
+        "effects.stribeck_friction.b_s": ["nan", "abc"], "effects.stribeck_friction.nosuch": ["1"],
+        "nosuch_key": ["1"], "robot": [files["binary"], files["missing"]], "world": [files["binary"], files["directory"]],
+        "protocol": ["nosuch"], "baudrate": ["0", "abc"],
+    }
+    for key, values in url_bad.items():
+        for v in values:
+            add(f"board info sim://?{key}={v}", ["board", "info", "--port", f"sim://?seed=1&{key}={v}"])
+    worlds = {
+        "unknown effect": '[effects.nosuch]\nk = 1\n',
+        "effect parameter nan": '[effects.stribeck_friction]\nb_s = nan\nw_s = 0.5\n',
+        "effect parameter unit computes": '[effects.stribeck_friction]\nb_s = "9**9**9 N*m*s"\n',
+        "payload nan": "payload = nan\n", "payload negative": "payload = -1\n", "payload huge": "payload = 1e9\n",
+        "payload computes": 'payload = "9**9**9 kg"\n', "mode unknown": 'mode = "sideways"\n',
+        "wheel_mass three": "wheel_mass = [1, 1, 1]\n", "faults.drop above one": "[faults]\ndrop = 2\n",
+        "unknown key": "nosuch = 1\n", "sensors nan": "[sensors]\ncurrent_noise = nan\n",
+        "robot missing": 'robot = "nosuch.toml"\n',
+    }
+    for kind, text in worlds.items():
+        add(f"sim serve --world {kind}", ["sim", "serve", "--clock", "fast", "--world",
+                                          write(f"worlds/{kind.replace(' ', '_')}.toml", text)], 5)
+    for item in ["nokey", "=1", "payload=nan", "nosuch=1", "mode=sideways", "effects.nosuch.k=1"]:
+        add(f"sim serve --set {item}", ["sim", "serve", "--clock", "fast", "--set", item], 5)
+    add("sim serve --status-file a directory", ["sim", "serve", "--clock", "fast", "--status-file",
+                                                files["directory"]], 5)
+
+    # 9. Ports.
+    for port in ["nosuch://x", "/dev/nonexistent-omnibench", "", "sim://?seed=abc", files["text"]]:
+        add(f"board info --port {port!r}", ["board", "info", "--port", port, "--timeout", "0.5"])
+        add(f"sweep --port {port!r}", ["sweep", "--port", port, "--procedure", good_proc["sweep"], "--out", new])
+    add("sweep without --port", ["sweep", "--procedure", good_proc["sweep"], "--out", new])
+    add("energy --ammeter bad URL", ["energy", "--port", SIM, "--procedure", good_proc["energy"], "--out", new,
+                                     "--ammeter", "nosuch://x"])
+    add("commission --port bad URL", ["commission", "--port", "nosuch://x", "--out", str(root / "w.toml")])
+
+    # 10. Every command: an unknown option, a missing required value, an unknown command.
+    commands = ["simulate", "ports", "board info", "board monitor", "sim serve", "commission", "sweep", "forward",
+                "lateral", "energy", "campaign", "import tfm", "fit", "validate-energy", "predict", "diagnose", "plan"]
+    for c in commands:
+        add(f"{c} --nosuch", c.split() + ["--nosuch"], 5 if c == "sim serve" else HANG_S)
+    for c, opt in [("simulate", "--commands"), ("board info", "--port"), ("board monitor", "--port"),
+                   ("commission", "--port"), ("fit", "--out"), ("validate-energy", "--model"), ("predict", "--model"),
+                   ("diagnose", "--model"), ("plan", "--target-se"), ("sweep", "--procedure"), ("import tfm", "--signs")]:
+        add(f"{c} {opt} without its value", c.split() + [str(run), opt] if c in ("fit", "validate-energy", "predict",
+                                                                                  "diagnose") else c.split() + [opt])
+    add("an unknown command", ["nosuch"])
+    add("board with an unknown subcommand", ["board", "nosuch"])
+    add("import with an unknown format", ["import", "nosuch", files["binary"]])
+    return out
 
 
-def classify(code: int | None, err: str, changed: bool) -> str:
+def classify(code: int | None, err: str, changed: bool, name: str = "", wrote_nan: bool = False) -> str:
     if changed:
         return "overwrite"
-    if code is None:
-        return "hang"
+    if code is None:  # only a served simulator runs until stopped, and only on acceptable input
+        return "handled" if name in ACCEPTABLE and name.startswith("sim serve") else "hang"
     if "internal error" in err or "Traceback" in err:
         return "internal"
     if code == 0:
-        return "silent"
-    lines = [x for x in err.strip().splitlines() if x.strip()]
-    return "clear" if len(lines) == 1 else "internal"
+        return "handled" if name in ACCEPTABLE and not wrote_nan else "silent"
+    lines = [x for x in err.strip().splitlines() if x.strip() and not x.startswith("skipping ")]  # --skip-bad
+    return "clear" if len(lines) == 1 and lines[0].startswith("omnibench:") else "internal"
 
 
-def run_all(root: Path | None = None) -> tuple[dict[str, int], list[str]]:
-    """Run every case; returns counts per outcome and the lines of the cases not 'clear'."""
+def _changed(before: dict, after: dict, refused: bool) -> bool:
+    """A file that existed changed or vanished; or, when refused, anything new appeared."""
+    if any(after.get(p) != v for p, v in before.items()):
+        return True
+    return refused and any(p not in before for p in after)
+
+
+def _nan_written(before: dict, after: dict) -> bool:
+    for p in after:
+        if p not in before and os.path.isfile(p) and os.path.getsize(p) < 50_000_000:
+            try:
+                text = Path(p).read_text(errors="replace")
+            except OSError:
+                continue
+            if "nan" in text.lower().replace("nanosec", ""):
+                return True
+    return False
+
+
+def _swap(arg: str, pairs: list[tuple[str, str]]) -> str:
+    for a, b in pairs:
+        arg = arg.replace(a, b)
+    return arg
+
+
+def run_all(root: Path | None = None, select: Callable[[int, Case], bool] | None = None,
+            progress: Callable[[str], None] | None = None) -> tuple[dict[str, int], list[str]]:
+    """Run the cases (all, or those `select` keeps); counts per outcome and the lines of those not clear."""
     own = root is None
     root = Path(tempfile.mkdtemp(prefix="omnibench-badinput-")) if own else root
+    cwd = os.getcwd()
     try:
-        run = make_fixture(root)
-        counts = {k: 0 for k in ("clear", "silent", "internal", "hang", "overwrite")}
-        worst = []
-        for name, argv in cases(root, run):
-            before = _digest(run)
-            code, err = run_cli(argv)
-            outcome = classify(code, err, _digest(run) != before)
+        work = root / "cwd"
+        work.mkdir(parents=True, exist_ok=True)
+        os.chdir(work)  # default outputs (runs/, model.toml, wiring.toml) land here, watched too
+        runs = make_fixture(root)
+        counts = {k: 0 for k in OUTCOMES}
+        worst: list[str] = []
+        all_cases = cases(root, runs)
+        for case in controls(root, runs):
+            before = _state(root)
+            code, err = run_cli(case.argv, 120)
+            if code != 0:
+                worst.append(f"refused: {case.name}: exit {code}: {err.strip()[-200:]}")
+            for p in sorted(set(_state(root)) - set(before), key=len, reverse=True):
+                (shutil.rmtree if os.path.isdir(p) and not os.path.islink(p) else os.remove)(p)
+        for i, case in enumerate(all_cases):
+            if select is not None and not select(i, case):
+                continue
+            before = _state(root)
+            code, err = run_cli(case.argv, case.timeout)
+            after = _state(root)
+            changed = _changed(before, after, refused=code != 0)
+            outcome = classify(code, err, changed, case.name, code == 0 and _nan_written(before, after))
             counts[outcome] += 1
-            if outcome != "clear":
-                worst.append(f"{outcome}: {name}: exit {code}: {err.strip().splitlines()[-1:] or ''}")
-            if _digest(run) != before:  # restore for the next case
-                shutil.rmtree(run)
-                run = make_fixture(root / f"again{len(worst)}")
+            if outcome not in ("clear", "handled"):
+                last = err.strip().splitlines()[-1:] or [""]
+                worst.append(f"{outcome}: {case.name}: exit {code}: {last[0][:200]}")
+                if progress:
+                    progress(worst[-1])
+            if changed or code == 0:  # restore: the next case starts from the same tree
+                for p in sorted(set(after) - set(before), key=len, reverse=True):
+                    (shutil.rmtree if os.path.isdir(p) and not os.path.islink(p) else os.remove)(p)
+                if any(after.get(p) != v for p, v in before.items()):
+                    old = {k: str(v) for k, v in runs.items()}
+                    shutil.rmtree(root / "runs", ignore_errors=True)
+                    runs = make_fixture(root)
+                    swap = [(old[k], str(runs[k])) for k in runs]
+                    all_cases[i + 1:] = [Case(c.name, [_swap(a, swap) for a in c.argv], c.timeout)
+                                         for c in all_cases[i + 1:]]
         return counts, worst
     finally:
+        os.chdir(cwd)
         if own:
             shutil.rmtree(root, ignore_errors=True)

@@ -1,0 +1,58 @@
+"""Option types shared by the commands: refuse bad values at the command line, in one line.
+
+click's FLOAT takes "nan" and "inf" and its Path takes "" (the current folder): neither is a
+value any omnibench option means, so these types refuse them before a command starts.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path as _Path
+from typing import Any
+
+import click
+
+from omnibench.errors import UserError
+
+
+class FiniteFloat(click.types.FloatParamType):
+    """A float that is a number: not NaN, not infinite."""
+
+    name = "number"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+class NonEmptyPath(click.Path):
+    """click.Path that refuses the empty string (which would mean the current folder)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("an empty path names no file", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+FINITE = FiniteFloat()
+
+
+def in_run(path: _Path) -> _Path | None:
+    """The run directory that `path` is, or lies in (None: not in a run)."""
+    p = _Path(path).resolve()
+    for d in (p, *p.parents):
+        if (d / "run.json").is_file():
+            return d
+    return None
+
+
+def check_out_folder(path: _Path, option: str = "--out") -> None:
+    """Refuse an output folder that is an existing file or lies in a run directory."""
+    if _Path(path).exists() and not _Path(path).is_dir():
+        raise UserError(f"{option} {path}: is a file, not a folder")
+    run = in_run(path)
+    if run is not None:
+        raise UserError(f"{option} {path}: is inside the run directory {run}; write elsewhere (a run's files "
+                        "are never overwritten)")
