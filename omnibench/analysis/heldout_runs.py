@@ -68,10 +68,21 @@ def _run_error(robot: Any, obs: Observations, run: str) -> float:
     return float(pred.nrmse.get(key, float("nan")))
 
 
-def _sweep_measures(name: str) -> bool:
-    """Friction the sweep measures (a, b, c). Effects' parameters are fitted on the traces: a
-    one-direction sweep cannot see direction asymmetry, nor time or transients."""
-    return name in SWEEP_FREE
+def _sweep_measures(name: str, sweep: Any = None) -> bool:
+    """Friction the sweep measures: a, b, c, and the parameters of library effects that show in
+    the sweep against speed or wheel (per-wheel gearbox friction, Stribeck, drag: a sweep of
+    steady speeds per wheel over the duty range pins them). Other effects' parameters are fitted
+    on the traces: a one-direction sweep cannot see direction asymmetry, nor time or transients."""
+    from omnibench.effects import EFFECTS
+
+    if name in SWEEP_FREE:
+        return True
+    eff = EFFECTS.get(name.split(".")[0]) if "." in name else None
+    if eff is None or "upside_down_sweep" not in eff.procedures:
+        return False
+    if eff.variable == "direction":  # only a sweep run both ways shows it
+        return sweep is not None and len(sweep) > 0 and bool((sweep["u"] < 0).any() and (sweep["u"] > 0).any())
+    return eff.variable in ("speed", "wheel")
 
 
 def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) -> Any:
@@ -83,10 +94,10 @@ def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) ->
     free = list(model.free or physics_free(model.robot))
     robot = model.robot
     if model.staged and len(train.sweep) and len(train.step_response):
-        sweep_free = [p for p in free if _sweep_measures(p)]
+        sweep_free = [p for p in free if _sweep_measures(p, train.sweep)]
         if sweep_free:
             robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
-        free, procs = [p for p in free if p not in SWEEP_FREE], ["step_response"]
+        free, procs = [p for p in free if p not in sweep_free], ["step_response"]
     if not free:
         return robot
     if model.run_supplies and procs == ["step_response"]:
