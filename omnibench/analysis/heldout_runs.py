@@ -70,15 +70,16 @@ def _run_error(robot: Any, obs: Observations, run: str) -> float:
 
 def _sweep_measures(name: str, sweep: Any = None) -> bool:
     """Friction the sweep measures: a, b, c, and the parameters of library effects that show in
-    the sweep against speed or wheel (per-wheel gearbox friction, Stribeck, drag: a sweep of
-    steady speeds per wheel over the duty range pins them). Other effects' parameters are fitted
-    on the traces: a one-direction sweep cannot see direction asymmetry, nor time or transients."""
+    the sweep alone, against speed or wheel (per-wheel gearbox friction, drag: a sweep of steady
+    speeds per wheel over the duty range pins them). Other effects' parameters are fitted on the
+    traces: a one-direction sweep cannot see direction asymmetry, nor time or transients, and an
+    effect that also shows in step responses (Stribeck) is measured best where it shows most."""
     from omnibench.effects import EFFECTS
 
     if name in SWEEP_FREE:
         return True
     eff = EFFECTS.get(name.split(".")[0]) if "." in name else None
-    if eff is None or "upside_down_sweep" not in eff.procedures:
+    if eff is None or tuple(eff.procedures) != ("upside_down_sweep",):
         return False
     if eff.variable == "direction":  # only a sweep run both ways shows it
         return sweep is not None and len(sweep) > 0 and bool((sweep["u"] < 0).any() and (sweep["u"] > 0).any())
