@@ -52,6 +52,9 @@ class RunError:
     kind: str  # "in-air trace", "sweep", "floor trace"
     signal: str
     nrmse: dict[str, float] = field(default_factory=dict)
+    #: per label, the held-out trace's wheel speeds (measured, predicted), (n, 4) each in time
+    #: order: what `heldout_noise` resamples (traces only; empty for a sweep)
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
 
 def _run_kind(obs: Observations, run: str) -> str:
@@ -60,12 +63,19 @@ def _run_kind(obs: Observations, run: str) -> str:
     return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
 
 
-def _run_error(robot: Any, obs: Observations, run: str) -> float:
+def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+    """The run's held-out NRMSE and, for a trace, its wheel speeds (measured, predicted)."""
     from omnibench.analysis.predict import predict_runs
 
     pred = predict_runs(robot, obs.select(runs=[run]))[0]
-    key = "steady_speed" if _run_kind(obs, run) == "sweep" else "wheel_speed"
-    return float(pred.nrmse.get(key, float("nan")))
+    if _run_kind(obs, run) == "sweep":
+        return float(pred.nrmse.get("steady_speed", float("nan"))), None
+    reps = [pred.traces[k] for k in sorted(pred.traces)]
+    series = None
+    if reps:
+        series = tuple(np.concatenate([r[[f"w{j}_{x}" for j in range(1, 5)]].to_numpy() for r in reps])
+                       for x in ("meas", "pred"))
+    return float(pred.nrmse.get("wheel_speed", float("nan"))), series
 
 
 def _sweep_measures(name: str, sweep: Any = None) -> bool:
@@ -127,7 +137,9 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
         err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
         for label, model in models.items():
             say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
-            err.nrmse[label] = _run_error(fit_physics(model, train, max_nfev), obs, held)
+            err.nrmse[label], series = _run_error(fit_physics(model, train, max_nfev), obs, held)
+            if series is not None:
+                err.series[label] = series
         held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []
         train_tr = baseline.traces(obs, train_runs)
         if baselines and held_tr and train_tr:
