@@ -82,3 +82,19 @@ def test_a_loss_within_the_runs_noise_is_not_a_trade_off(robot, monkeypatch):
     e.series[labels[3]] = (m, biased)
     e.nrmse[labels[3]] = nrmse(m, biased)
     assert [t["addition"] for t in loro.heldout_runs(_diag(robot), obs=None).tradeoffs] == ["asymmetric_coulomb"]
+
+
+def test_the_sweep_stage_fits_what_the_sweep_alone_shows():
+    """LORO's first stage (the sweep): a, b, c and effects seen only in the sweep against speed or
+    wheel; direction asymmetry only from a sweep run both ways; nothing a step response shows."""
+    import pandas as pd
+
+    from omnibench.analysis.heldout_runs import _sweep_measures
+
+    one_way, both_ways = pd.DataFrame({"u": [0.2, 0.5]}), pd.DataFrame({"u": [-0.5, 0.5]})
+    assert _sweep_measures("b", one_way) and _sweep_measures("per_wheel_friction.db_2", one_way)
+    assert _sweep_measures("quadratic_drag.d_q", one_way)
+    assert not _sweep_measures("asymmetric_coulomb.db", one_way)
+    assert _sweep_measures("asymmetric_coulomb.db", both_ways)
+    assert not _sweep_measures("stribeck_friction.b_s", one_way)  # shows in step responses too
+    assert not _sweep_measures("actuator_lag.tau_a", one_way) and not _sweep_measures("I_w", one_way)
