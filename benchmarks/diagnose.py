@@ -7,8 +7,8 @@ each time. Printed per effect: detection rate (selected first), how often the fi
 is within 3 SE of the truth, the median held-out error ratio after/before, and wrong
 first picks. Then the false-addition rate on clean worlds (no undeclared effect), over the
 `CLEAN` campaigns. The library includes the command-timing effects (effects/timing.py:
-command_latency, serial_command_latency, per_wheel_latency), revealed by a square wave logged
-every 20 ± 5 ms; the wheel inertia is offered as a core-parameter re-estimate wherever step
+command_latency, serial_command_latency, per_wheel_latency, actuator_lag), revealed by a square
+wave logged every 20 ± 5 ms; the wheel inertia is offered as a core-parameter re-estimate wherever step
 responses are present (a false re-estimate on a clean world counts as a false addition).
 
     .venv/bin/python benchmarks/diagnose.py                 # 20 seeds per effect, 20 clean worlds

@@ -52,6 +52,9 @@ class RunError:
     kind: str  # "in-air trace", "sweep", "floor trace"
     signal: str
     nrmse: dict[str, float] = field(default_factory=dict)
+    #: per label, the held-out trace's wheel speeds (measured, predicted), (n, 4) each in time
+    #: order: what `heldout_noise` resamples (traces only; empty for a sweep)
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
 
 def _run_kind(obs: Observations, run: str) -> str:
@@ -60,18 +63,37 @@ def _run_kind(obs: Observations, run: str) -> str:
     return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
 
 
-def _run_error(robot: Any, obs: Observations, run: str) -> float:
+def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+    """The run's held-out NRMSE and, for a trace, its wheel speeds (measured, predicted)."""
     from omnibench.analysis.predict import predict_runs
 
     pred = predict_runs(robot, obs.select(runs=[run]))[0]
-    key = "steady_speed" if _run_kind(obs, run) == "sweep" else "wheel_speed"
-    return float(pred.nrmse.get(key, float("nan")))
+    if _run_kind(obs, run) == "sweep":
+        return float(pred.nrmse.get("steady_speed", float("nan"))), None
+    reps = [pred.traces[k] for k in sorted(pred.traces)]
+    series = None
+    if reps:
+        series = tuple(np.concatenate([r[[f"w{j}_{x}" for j in range(1, 5)]].to_numpy() for r in reps])
+                       for x in ("meas", "pred"))
+    return float(pred.nrmse.get("wheel_speed", float("nan"))), series
 
 
-def _sweep_measures(name: str) -> bool:
-    """Friction the sweep measures (a, b, c). Effects' parameters are fitted on the traces: a
-    one-direction sweep cannot see direction asymmetry, nor time or transients."""
-    return name in SWEEP_FREE
+def _sweep_measures(name: str, sweep: Any = None) -> bool:
+    """Friction the sweep measures: a, b, c, and the parameters of library effects that show in
+    the sweep alone, against speed or wheel (per-wheel gearbox friction, drag: a sweep of steady
+    speeds per wheel over the duty range pins them). Other effects' parameters are fitted on the
+    traces: a one-direction sweep cannot see direction asymmetry, nor time or transients, and an
+    effect that also shows in step responses (Stribeck) is measured best where it shows most."""
+    from omnibench.effects import EFFECTS
+
+    if name in SWEEP_FREE:
+        return True
+    eff = EFFECTS.get(name.split(".")[0]) if "." in name else None
+    if eff is None or tuple(eff.procedures) != ("upside_down_sweep",):
+        return False
+    if eff.variable == "direction":  # only a sweep run both ways shows it
+        return sweep is not None and len(sweep) > 0 and bool((sweep["u"] < 0).any() and (sweep["u"] > 0).any())
+    return eff.variable in ("speed", "wheel")
 
 
 def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) -> Any:
@@ -83,10 +105,10 @@ def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) ->
     free = list(model.free or physics_free(model.robot))
     robot = model.robot
     if model.staged and len(train.sweep) and len(train.step_response):
-        sweep_free = [p for p in free if _sweep_measures(p)]
+        sweep_free = [p for p in free if _sweep_measures(p, train.sweep)]
         if sweep_free:
             robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
-        free, procs = [p for p in free if p not in SWEEP_FREE], ["step_response"]
+        free, procs = [p for p in free if p not in sweep_free], ["step_response"]
     if not free:
         return robot
     if model.run_supplies and procs == ["step_response"]:
@@ -115,7 +137,9 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
         err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
         for label, model in models.items():
             say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
-            err.nrmse[label] = _run_error(fit_physics(model, train, max_nfev), obs, held)
+            err.nrmse[label], series = _run_error(fit_physics(model, train, max_nfev), obs, held)
+            if series is not None:
+                err.series[label] = series
         held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []
         train_tr = baseline.traces(obs, train_runs)
         if baselines and held_tr and train_tr:

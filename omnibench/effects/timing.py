@@ -4,6 +4,8 @@
   serial_command_latency   wheel j acts tau + tau_packet * slot_j s after it, slot_j = the
                            wheel's place (0..3) in the order the firmware sends the commands
   per_wheel_latency        wheel j acts tau_j s after it (the order read off the data)
+  actuator_lag             the duty each motor sees follows the command through a first-order
+                           lag of time constant tau_a (driver ramping / output filter)
 
 A latency is a pure time shift of each wheel's zero-order-hold duty schedule, so it is not a
 kernel hook: `delay_schedule` rewrites the schedule before the kernel sees it, in
@@ -20,6 +22,7 @@ send order (`Scenario.command_order`) is that pattern.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -30,7 +33,8 @@ from omnibench.model.terms import Param, Term, register
 PACKET_9600 = 4 * 10 / 9600.0
 MAX_LATENCY = 0.2  # s, physical range of a latency parameter
 
-TIMING_TERMS = ("command_latency", "serial_command_latency", "per_wheel_latency")
+TIMING_TERMS = ("command_latency", "serial_command_latency", "per_wheel_latency", "actuator_lag")
+MAX_LAG = 0.5  # s, physical range of an actuator time constant
 
 command_latency = register(Term(
     name="command_latency",
@@ -66,6 +70,19 @@ per_wheel_latency = register(Term(
 ))
 
 
+actuator_lag = register(Term(
+    name="actuator_lag",
+    title="Actuator lag (first-order duty filter)",
+    doc="tau_a du_eff,j/dt = u_j - u_eff,j, u_eff = 0 at the start: the duty the motor sees "
+        "follows the command with time constant tau_a (a motor driver that ramps or filters its "
+        "output, e.g. a Sabertooth's ramping). Steady states are unchanged; unlike a latency the "
+        "change starts at once but arrives gradually. A rewrite of the schedule like the "
+        "latencies (after them): it books no power of its own (E_actuator_lag = 0).",
+    params=(Param("tau_a", "s", 0.0, "time constant of the duty the motors see", 0.0, MAX_LAG),),
+    reveals="step_response (residual just after each change of duty, decaying over tau_a)",
+))
+
+
 def slots(order: Sequence[int] | None) -> np.ndarray:
     """Place (0..3) of each wheel FL, FR, RL, RR in a send order given as wheel numbers 1..4."""
     order = tuple(order) if order is not None else (1, 2, 3, 4)
@@ -90,6 +107,42 @@ def wheel_delays(terms: Mapping[str, Mapping[str, float]], order: Sequence[int] 
         p = terms["per_wheel_latency"]
         d += np.array([float(p.get(f"tau_{j}", 0.0)) for j in range(1, 5)])
     return d
+
+
+def wheel_lags(terms: Mapping[str, Mapping[str, float]]) -> np.ndarray:
+    """Actuator time constant of each wheel (4,), s (0: no lag)."""
+    return np.full(4, float(terms["actuator_lag"].get("tau_a", 0.0)) if "actuator_lag" in terms else 0.0)
+
+
+def lag_coefficients(tau: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per physics step dt of a first-order lag with time constants tau (0: none): the decay
+    a = exp(-dt/tau) and the weight c = tau/dt (1 - a) of the start value in the step average."""
+    tau = np.asarray(tau, dtype=float)
+    safe = np.where(tau > 0, tau, 1.0)
+    a = np.where(tau > 0, np.exp(-dt / safe), 0.0)
+    return a, np.where(tau > 0, safe / dt * (1.0 - a), 0.0)
+
+
+def lag_schedules(t_cmd: np.ndarray, U: np.ndarray, lags: np.ndarray, dt: float,
+                  t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-order-hold schedules (t_cmd (K,), U (B, K, 4)) through a first-order lag per wheel
+    (lags (B, 4), s; 0 = none) -> (t (N,), U' (B, N, 4)) on the physics grid k dt up to t_end:
+    each step's exact average of the lagged duty, the command held constant over the step at
+    its own average (exact for a schedule on the grid, as `delay_schedules(..., dt)` gives)."""
+    from scipy.signal import lfilter
+
+    U = np.asarray(U, dtype=float)
+    B = U.shape[0]
+    n = int(math.ceil(t_end / dt - 1e-9)) + 1
+    grid = np.arange(n + 1) * dt
+    ubar = np.diff(_integral(np.asarray(t_cmd, dtype=float), U, np.zeros((B, 4)), grid), axis=2) / dt  # (B, 4, n)
+    out = ubar.copy()
+    lags = np.asarray(lags, dtype=float).reshape(B, 4)
+    a, c = lag_coefficients(lags, dt)
+    for b, j in zip(*np.nonzero(lags > 0)):
+        y = lfilter([0.0, 1.0 - a[b, j]], [1.0, -a[b, j]], ubar[b, j])  # value at each step's start, 0 at t = 0
+        out[b, j] = ubar[b, j] + (y - ubar[b, j]) * c[b, j]
+    return grid[:-1], np.ascontiguousarray(out.transpose(0, 2, 1))
 
 
 def delay_schedules(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray,
@@ -157,6 +210,11 @@ def library_effects() -> dict:
         Effect("serial_command_latency", fit=("tau", "tau_packet"),
                example={"tau": 0.01, "tau_packet": PACKET_9600}, start={"tau": 0.005, "tau_packet": 0.002},
                procedures=("step_response",), variable="time since duty change", separates=order),
+        Effect("actuator_lag", fit=("tau_a",), example={"tau_a": 0.03}, start={"tau_a": 0.005},
+               procedures=("step_response",), variable="time since duty change",
+               separates={"command_latency": "look at the first sample after a change: a latency moves "
+                          "nothing until it has passed, a lag starts at once and arrives gradually; "
+                          "log faster than tau_a to see the shape"}),
         Effect("per_wheel_latency", fit=("tau_1", "tau_2", "tau_3", "tau_4"),
                example={"tau_1": 0.015, "tau_2": 0.004, "tau_3": 0.010, "tau_4": 0.002},
                start={f"tau_{j}": 0.005 for j in range(1, 5)},

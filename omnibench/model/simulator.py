@@ -187,19 +187,33 @@ def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
     return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
 
 
-def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd, dt: float):
+def command_lags(robot: Robot, scenario: Scenario) -> np.ndarray:
+    """Actuator time constant of each wheel (4,), s (omnibench.effects.timing): zero unless the
+    robot or its world carries an actuator lag."""
+    from omnibench.effects.timing import wheel_lags
+
+    return wheel_lags(term_parameters(robot, scenario))
+
+
+def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd, dt: float,
+             t_end: float = 0.0):
     """The duty schedules as the motors receive them: each wheel shifted by its latency, a
-    change inside a physics step averaged over it (unchanged, the same arrays, when no
-    trajectory has a latency)."""
-    from omnibench.effects.timing import delay_schedules
+    change inside a physics step averaged over it, then through its actuator lag (on the
+    physics grid up to t_end); unchanged, the same arrays, when no trajectory has either."""
+    from omnibench.effects.timing import delay_schedules, lag_schedules
 
     delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
-    if not np.any(delays):
+    lags = np.stack([command_lags(r, s) for r, s in zip(robots, scenarios)])
+    if not np.any(delays) and not np.any(lags):
         return t_cmd, u_cmd
     t = np.asarray(t_cmd, dtype=float)
     U = np.asarray(u_cmd, dtype=float).reshape(-1, t.shape[0], 4)
     U = np.broadcast_to(U, (len(robots),) + U.shape[1:])
-    return delay_schedules(t, U, delays, dt)
+    if np.any(delays):
+        t, U = delay_schedules(t, U, delays, dt)
+    if np.any(lags):
+        t, U = lag_schedules(t, U, lags, dt, t_end)
+    return t, U
 
 
 @dataclass
@@ -253,7 +267,7 @@ def simulate_batch(
     mod = kernel.load_kernel(lay)
     preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
     n_steps = int(round(t_end / dt))
-    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd, dt)
+    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd, dt, n_steps * dt)
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
         raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
@@ -367,6 +381,8 @@ class Simulator:
         self._sub = np.array([stable_substeps(prep.substeps_lambda, self.dt, self.method)], dtype=np.int64)
         self._duties = np.zeros(4)
         self._delays = command_delays(self.robot, scenario)
+        self._lags = command_lags(self.robot, scenario)
+        self._lag_y = np.zeros(4)  # the lagged duty each motor sees (actuator_lag)
         self._history: list[tuple[float, np.ndarray]] = []  # (time issued, duties): latency queue
         self._last = self._advance_steps(np.zeros(4), 0)
 
@@ -397,7 +413,7 @@ class Simulator:
         target = int(round((self.t + duration) / self.dt))
         n = max(0, target - self._steps)
         self._duties = duties
-        if np.any(self._delays):
+        if np.any(self._delays) or np.any(self._lags):
             self._advance_delayed(duties, target)
         elif n:
             self._last = self._advance_steps(duties, n)
@@ -414,6 +430,9 @@ class Simulator:
         self._history.append((self.t, duties))
         dt = self.dt
         t_start = self.t
+        while self._steps < target and np.any(self._lags):  # a lag changes the duty every step
+            self._last = self._advance_steps(self._lagged(step_average(self._history, self._delays, self.t,
+                                                                       self.t + dt)), 1)
         while self._steps < target:
             now = self.t
             arrivals = [t_c + d for t_c, _ in self._history for d in self._delays if t_c + d > now + 1e-9 * dt]
@@ -424,11 +443,22 @@ class Simulator:
             else:  # an arrival inside this step: its average duty
                 self._last = self._advance_steps(step_average(self._history, self._delays, now, now + dt), 1)
         if self.t == t_start:  # nothing to integrate: the signals at the current state
-            self._last = self._advance_steps(step_average(self._history, self._delays, self.t, self.t + dt), 0)
+            u_now = step_average(self._history, self._delays, self.t, self.t + dt)
+            self._last = self._advance_steps(self._lag_y if np.any(self._lags) else u_now, 0)
         # forget commands every wheel has moved past (keep the one each wheel still holds)
         done = [k for k, (t_c, _) in enumerate(self._history) if t_c + self._delays.max() <= self.t - dt]
         if done:
             del self._history[: done[-1]]
+
+    def _lagged(self, ubar: np.ndarray) -> np.ndarray:
+        """One physics step of the actuator lag fed the step's average command `ubar`: the
+        step's average lagged duty (as `lag_schedules`); advances the lag state."""
+        from omnibench.effects.timing import lag_coefficients
+
+        a, c = lag_coefficients(self._lags, self.dt)
+        avg = ubar + (self._lag_y - ubar) * c
+        self._lag_y = a * self._lag_y + (1.0 - a) * ubar
+        return avg
 
     @property
     def state(self) -> SimState:

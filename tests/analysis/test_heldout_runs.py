@@ -60,3 +60,41 @@ def test_baseline_needs_two_runs(tmp_path, capsys):
         main(["predict", "--model", str(model), str(w.path), "--baseline"])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "at least two runs" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_loss_within_the_runs_noise_is_not_a_trade_off(robot, monkeypatch):
+    """4 % worse on a short noisy trace, but within two block-bootstrap SEs: not a trade-off;
+    the same loss as a bias on every sample is one."""
+    import numpy as np
+
+    labels = ["declared", "declared + I_w", "+ per_wheel_latency", "+ asymmetric_coulomb"]
+    rng = np.random.default_rng(1)
+    m = 10 * np.sign(np.sin(np.arange(60) * 0.1))[:, None] * np.ones((1, 4))
+    a, b = m + 0.7 * rng.normal(size=m.shape), m + 0.75 * rng.normal(size=m.shape)
+    from omnibench.analysis.predict import nrmse
+
+    assert nrmse(m, b) > 1.03 * nrmse(m, a)  # beyond the 2 % tolerance alone
+    e = RunError("rc", "in-air trace", "wheel speed", dict(zip(labels, [nrmse(m, a)] * 3 + [nrmse(m, b)])),
+                 series={lab: (m, a) for lab in labels[:3]} | {labels[3]: (m, b)})
+    monkeypatch.setattr(loro, "leave_one_run_out", lambda *x, **k: [e])
+    assert loro.heldout_runs(_diag(robot), obs=None).tradeoffs == []
+    biased = a + 0.4 * np.sign(m)
+    e.series[labels[3]] = (m, biased)
+    e.nrmse[labels[3]] = nrmse(m, biased)
+    assert [t["addition"] for t in loro.heldout_runs(_diag(robot), obs=None).tradeoffs] == ["asymmetric_coulomb"]
+
+
+def test_the_sweep_stage_fits_what_the_sweep_alone_shows():
+    """LORO's first stage (the sweep): a, b, c and effects seen only in the sweep against speed or
+    wheel; direction asymmetry only from a sweep run both ways; nothing a step response shows."""
+    import pandas as pd
+
+    from omnibench.analysis.heldout_runs import _sweep_measures
+
+    one_way, both_ways = pd.DataFrame({"u": [0.2, 0.5]}), pd.DataFrame({"u": [-0.5, 0.5]})
+    assert _sweep_measures("b", one_way) and _sweep_measures("per_wheel_friction.db_2", one_way)
+    assert _sweep_measures("quadratic_drag.d_q", one_way)
+    assert not _sweep_measures("asymmetric_coulomb.db", one_way)
+    assert _sweep_measures("asymmetric_coulomb.db", both_ways)
+    assert not _sweep_measures("stribeck_friction.b_s", one_way)  # shows in step responses too
+    assert not _sweep_measures("actuator_lag.tau_a", one_way) and not _sweep_measures("I_w", one_way)

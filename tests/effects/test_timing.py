@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from omnibench.effects.timing import PACKET_9600, delay_schedules, slots, wheel_delays
+from omnibench.effects.timing import PACKET_9600, delay_schedules, lag_schedules, slots, wheel_delays
 from omnibench.model import Scenario, Simulator, simulate_batch
 
 T_CMD = [0.0, 0.3, 0.6]
@@ -78,3 +78,34 @@ def test_sub_step_latency_moves_the_trajectory_continuously(omnibot):
     steps = np.diff(res.signal("phi1")[:, 350])  # 50 ms after the reversal at 0.3 s
     assert np.all(steps > 0)  # a later reversal: more angle still gained forward
     assert steps.max() < 3 * steps.mean()  # no jump at a step boundary
+
+
+def test_actuator_lag_gives_the_first_order_step_response_exactly():
+    """A duty step 0 -> 1 at 0.1 s through tau_a: each physics step carries the exact average of
+    1 - exp(-(t - 0.1) / tau_a) over it; zero lag leaves the schedule as it is."""
+    tau, dt = 0.03, 1e-3
+    t, U = lag_schedules(np.array([0.0, 0.1]), np.array([[[0, 0, 0, 0], [1, 1, 1, 1]]], float),
+                         np.array([[tau, 0.0, tau, 0.0]]), dt, 0.3)
+    k = np.arange(len(t))
+    lo, hi = np.maximum(k * dt - 0.1, 0), np.maximum((k + 1) * dt - 0.1, 0)
+    exact = (hi - lo - tau * (np.exp(-lo / tau) - np.exp(-hi / tau))) / dt  # mean of 1 - exp(-s/tau)
+    np.testing.assert_allclose(U[0, :, 0], exact, atol=1e-12)
+    np.testing.assert_allclose(U[0, :, 1], (k * dt >= 0.1 - 1e-12).astype(float))
+    assert U[0, 100 + int(tau / dt), 2] == pytest.approx(1 - np.exp(-1), abs=0.02)  # 63 % after tau_a
+
+
+def test_simulated_board_applies_actuator_lag_like_the_batch_simulator(omnibot):
+    scen = Scenario(mode="upside_down", effects={"actuator_lag": {"tau_a": 0.04},
+                                                 "command_latency": {"tau": 0.0125}})
+    sim = Simulator(omnibot, scen)
+    phi = []
+    t_c = T_CMD + [1.0]
+    for k in range(len(T_CMD)):
+        for _ in range(round((t_c[k + 1] - t_c[k]) / 0.02)):
+            phi.append(sim.advance(np.array(U_CMD[k]), 0.02).phi.copy())
+    ref = simulate_batch(omnibot, scen, T_CMD, U_CMD, 1.0).frame(0)
+    np.testing.assert_allclose(np.array(phi), ref[[f"phi{j}" for j in range(1, 5)]].to_numpy()[20::20], atol=1e-9)
+    base = simulate_batch(omnibot, Scenario(mode="upside_down", effects={"command_latency": {"tau": 0.0125}}),
+                          T_CMD, U_CMD, 1.0).frame(0)
+    assert np.abs(ref["phi1"] - base["phi1"]).max() > 1e-2  # the lag does change the run
+    assert ref["phi_dot1"].iloc[290] == pytest.approx(base["phi_dot1"].iloc[290], rel=3e-3)  # same steady speed

@@ -80,7 +80,7 @@ REVEALING: dict[str, CampaignSpec] = {
     # command timing: reversals logged every 20 ± 5 ms (the 2019 Arduino loop)
     **{name: CampaignSpec((), SquareWave(duties=(0.5, -0.5), half_period=0.25, duration=4.0, sample_dt=0.02,
                                          jitter=0.005))
-       for name in ("command_latency", "serial_command_latency", "per_wheel_latency")},
+       for name in ("command_latency", "serial_command_latency", "per_wheel_latency", "actuator_lag")},
 }
 
 #: Campaigns for clean-world (no undeclared effect) checks: together they exercise every candidate.

@@ -246,7 +246,7 @@ def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any
 
 def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None = None,
              procedures: Sequence[str] | None = None, alpha: float = ALPHA, max_effects: int = 3,
-             top_k: int = 3, folds: int = engine.CV_FOLDS, seed: int = 0,
+             top_k: int = 4, folds: int = engine.CV_FOLDS, seed: int = 0,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Close the loop on `obs` for the declared `robot`; see the module docstring."""
     say = progress or (lambda s: None)

@@ -41,6 +41,7 @@ from scipy import optimize, stats
 
 from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
 from omnibench.analysis.observations import Observations
+from omnibench.analysis.diagnosis.robust_se import cluster_se
 from omnibench.analysis.predictor import Predictor
 from omnibench.effects.library import Effect
 
@@ -234,10 +235,10 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
     Jw = (J * w[:, None])[used]
     se = {p: float("nan") for p in free}
-    if free:
-        cov = np.linalg.pinv(Jw.T @ Jw)
-        for k, p in enumerate(free):
-            se[p] = float(math.sqrt(max(cov[k, k], 0.0)))
+    if free:  # cluster-robust over the CV groups: step-response residuals correlate in time
+        rw = ((problem.y - f0) * w)[used]
+        for p, v in zip(free, cluster_se(Jw, rw, problem.table["cv_group"].to_numpy()[used])):
+            se[p] = float(v)
     return ModelFit(robot=fitted, free=free, values={p: param_value(fitted, p) for p in free}, se=se, f=f0,
                     scale=s, deviance=problem.deviance(f0), J=J, nfev=nfev, converged=converged)
 

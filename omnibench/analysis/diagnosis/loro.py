@@ -6,7 +6,8 @@ re-estimates, in the order diagnose accepted them). Each stage is refitted with 
 one (analysis/heldout_runs.py: a, b on the sweep, the rest on the traces) and predicts that
 run. An addition whose stage predicts some run worse than the declared model by more than
 TOLERANCE (relative; compared with the declared model, as diagnose's own held-out check, so
-small losses cannot pile up) is a trade-off: reported with the runs it costs and what it gains,
+small losses cannot pile up) and, for a trace, by more than its noise (two standard errors of
+the change by a moving-block bootstrap over the trace, analysis/heldout_noise.py) is a trade-off: reported with the runs it costs and what it gains,
 and it and every later addition are left out of the model `--out` writes (`accepted`).
 """
 
@@ -46,7 +47,7 @@ class HeldOutRuns:
                          + (f" (while {better} improve)" if better else ""))
         if not self.tradeoffs:
             lines.append(f"no addition makes any run's held-out error worse than the declared model's "
-                         f"(beyond {100 * TOLERANCE:.0f} %)")
+                         f"(beyond {100 * TOLERANCE:.0f} % and its noise)")
         else:
             kept = ", ".join(self.additions[:self.accepted]) or "nothing"
             lines.append(f"accepted on held-out runs: {kept} (trade-offs are reported, not added to the written model)")
@@ -95,7 +96,7 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
             a, b = e.nrmse.get(labels[0]), e.nrmse.get(cur)
             if a is None or b is None:
                 continue
-            if b > (1 + TOLERANCE) * a:
+            if b > (1 + TOLERANCE) * a and _beyond_noise(e, labels[0], cur):
                 worse[e.run] = (a, b)
             elif b < (1 - TOLERANCE) * a:
                 better[e.run] = (a, b)
@@ -103,6 +104,17 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
             trade.append({"addition": cur.lstrip("+ ").split(" + ")[-1], "worse": worse, "better": better})
             accepted = min(accepted, k)
     return HeldOutRuns(labels, errors, trade, accepted)
+
+
+def _beyond_noise(e: RunError, base: str, cur: str) -> bool:
+    """Is run e's loss from `base` to `cur` beyond its noise? For a trace: more than 2 block-
+    bootstrap standard errors (analysis/heldout_noise.py); without the trace (a sweep): yes."""
+    from omnibench.analysis.heldout_noise import worse_beyond_noise
+
+    if base not in e.series or cur not in e.series:
+        return True
+    m, pa = e.series[base]
+    return worse_beyond_noise(m, pa, e.series[cur][1])
 
 
 def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
