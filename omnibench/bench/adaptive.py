@@ -4,8 +4,8 @@
 Each round fits all data so far, plans the whole remaining design from that fit
 (omnibench.analysis.design), and runs only its first block in one pose (up to the next flip):
 the flip is where the operator is busy anyway, and re-planning there uses the newest data.
-The first time a procedure runs, only a pilot (the best-ranked half of its steps, half the
-repetitions) is run: its fit measures the noise the plan assumed (each observation group's
+The first time a procedure runs, only a pilot (its diagnostic floor, else its planned steps
+at half the repetitions) is run: its fit measures the noise the plan assumed (each observation group's
 chi^2/dof), so the rest is planned with the noise the robot actually has.
 
 `adaptive_loop` is independent of how steps are executed: `execute(files)` runs procedure

@@ -17,7 +17,10 @@ of Phi per second of cost. Operator actions to reach a world (flip, wheel swap, 
 discrete, so the greedy runs once per set of worlds, that set paying its setup up front, and
 the cheapest set that meets the targets wins. Stops when every target is predicted met (at
 `margin` of it), when no candidate lowers Phi, or at the budget; repetitions later choices
-made redundant are then removed. The worlds are ordered to need the fewest actions.
+made redundant are then removed. The convex optimum over real repetitions (optimal.py),
+rounded to whole pairs (integer parts completed by the greedy, pruned), competes with it; both
+are then improved by exchanging pairs for cheaper ones that keep every target met, and the
+cheaper design wins. The worlds are ordered to need the fewest actions.
 
 Identifiability: a target the data in hand plus every candidate cannot separate (a null
 direction of their information) is refused, with the experiment that would separate it; a
