@@ -144,15 +144,21 @@ def main(argv: list[str] | None = None) -> int:
 
         det_a = det_f = 0
         n = 0
+        false_a = false_f = n_clean = 0
         for r in rows:
-            if r["world"] == "clean":
-                continue
-            n += 1
             da = diagnose(robot, r["obs"])
             df = diagnose(robot, fixed_obs[(r["world"], r["seed"])])
+            if r["world"] == "clean":  # a false addition: an effect named on a world without one
+                n_clean += 1
+                false_a += bool(da.selected)
+                false_f += bool(df.selected)
+                continue
+            n += 1
             det_a += bool(da.selected) and da.selected[0].name == args.effect
             det_f += bool(df.selected) and df.selected[0].name == args.effect
         print(f"diagnose names {args.effect} first: adaptive data {det_a}/{n}, fixed grid data {det_f}/{n}")
+        print(f"diagnose adds an effect on a clean world: adaptive data {false_a}/{n_clean}, "
+              f"fixed grid data {false_f}/{n_clean}")
     return 0
 
 
