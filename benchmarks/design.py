@@ -121,20 +121,44 @@ def main(argv: list[str] | None = None) -> int:
               f"{sum(r['fixed_met'] for r in rs)}/{len(rs)}); 95 % interval coverage {100 * np.mean(cov):.0f} % "
               f"({sum(cov)}/{len(cov)})" + (" [model lacks the world's effect: coverage not expected]"
                                             if wname != "clean" else ""))
+    # ---- the same planner with the noise known in advance (each clean seed's fixed-grid fit: its values and
+    # chi^2/dof per group), planning the whole campaign at once with the diagnostic floor: what the
+    # adaptive loop would reach if it did not have to learn the noise first
+    from omnibench.analysis.design.files import diagnostic_floor
+    from omnibench.analysis.design.information import candidate_information
+    from omnibench.analysis.design.planner import plan, planning_names
+
+    floor = diagnostic_floor(robot, files, space)
+    known = []
+    for seed in seeds:
+        ff = fixed_fits[("clean", seed)]
+        info = candidate_information(ff.robot, space.candidates, planning_names(ff.robot), group_s2=ff.group_s2)
+        d = plan(ff.robot, None, targets, space, costs, required=floor, info=info)
+        known.append((d.robot_seconds, d.operator_actions, all(d.met.values())))
+    ks, ka = statistics.median(k[0] for k in known), statistics.median(k[1] for k in known)
+    print(f"noise known in advance (one plan, no pilot): median robot time {ks:.0f} s (ratio {ks / fixed_s:.2f}), "
+          f"operator actions {ka:.0f} (ratio {ka / fixed_a:.2f}); predicted to meet the targets in "
+          f"{sum(k[2] for k in known)}/{len(known)}")
     if args.diagnose and not args.no_effect_world:
         from omnibench.analysis.diagnosis import diagnose
 
         det_a = det_f = 0
         n = 0
+        false_a = false_f = n_clean = 0
         for r in rows:
-            if r["world"] == "clean":
-                continue
-            n += 1
             da = diagnose(robot, r["obs"])
             df = diagnose(robot, fixed_obs[(r["world"], r["seed"])])
+            if r["world"] == "clean":  # a false addition: an effect named on a world without one
+                n_clean += 1
+                false_a += bool(da.selected)
+                false_f += bool(df.selected)
+                continue
+            n += 1
             det_a += bool(da.selected) and da.selected[0].name == args.effect
             det_f += bool(df.selected) and df.selected[0].name == args.effect
         print(f"diagnose names {args.effect} first: adaptive data {det_a}/{n}, fixed grid data {det_f}/{n}")
+        print(f"diagnose adds an effect on a clean world: adaptive data {false_a}/{n_clean}, "
+              f"fixed grid data {false_f}/{n_clean}")
     return 0
 
 

@@ -4,8 +4,8 @@
 Each round fits all data so far, plans the whole remaining design from that fit
 (omnibench.analysis.design), and runs only its first block in one pose (up to the next flip):
 the flip is where the operator is busy anyway, and re-planning there uses the newest data.
-The first time a procedure runs, only a pilot (the best-ranked half of its steps, half the
-repetitions) is run: its fit measures the noise the plan assumed (each observation group's
+The first time a procedure runs, only a pilot (its diagnostic floor, else its planned steps
+at half the repetitions) is run: its fit measures the noise the plan assumed (each observation group's
 chi^2/dof), so the rest is planned with the noise the robot actually has.
 
 `adaptive_loop` is independent of how steps are executed: `execute(files)` runs procedure
@@ -88,16 +88,20 @@ def first_block(units: list[Unit]) -> list[Unit]:
 
 
 def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
-    """For procedures without data yet: the best-ranked half of their units, half the repetitions
-    (in the units' run order); `required` candidates (the diagnostic floor) always run in full."""
-    keep: dict[int, int] = {id(u): u.reps for u in units if u.candidate in required}
+    """For procedures without data yet: their `required` candidates (the diagnostic floor) alone
+    if the plan has any, else all their units at half the repetitions (a subset of the steps may
+    not separate the targets the whole does). The pilot's fit measures the noise; the rest is
+    planned with it."""
+    keep: dict[int, int] = {}
     for proc in dict.fromkeys(u.candidate.procedure for u in units):
-        us = [u for u in units if u.candidate.procedure == proc and id(u) not in keep]
+        us = [u for u in units if u.candidate.procedure == proc]
+        floor = [u for u in us if u.candidate in required]
         if proc in have:
             keep.update({id(u): u.reps for u in us})
-        else:
-            for u in sorted(us, key=lambda u: u.rank)[:max(1, math.ceil(PILOT * len(us)))]:
-                keep[id(u)] = max(1, math.ceil(PILOT * u.reps))
+        elif floor:  # the diagnostic floor of this procedure, once, is its pilot
+            keep.update({id(u): 1 for u in floor})
+        else:  # every step the plan chose (together they separate the targets), at half the repetitions
+            keep.update({id(u): max(1, math.ceil(PILOT * u.reps)) for u in us})
     return [Unit(u.candidate, keep[id(u)], u.rank) for u in units if id(u) in keep]
 
 

@@ -103,7 +103,8 @@ def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder:
         data["description"] = f"omnibench plan: {what}"
         if proc != "sweep":
             op = dict(data.get("simulated_operator", {}))
-            op["seed"] = int(op.get("seed", 1)) + 1000 * seed + n
+            # a new tape-noise draw per round and file, inside the runner's seed range (0..1000)
+            op["seed"] = (int(op.get("seed", 1)) + 31 * seed + n) % 1001
             data["simulated_operator"] = op
         path = folder / f"{prefix}{n:02d}_{fname}.toml"
         header = (f"# Written by `omnibench plan` from {Path(files[fname]).name}: only the levels, directions,\n"

@@ -73,6 +73,26 @@ def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations
                         lateral=pd.DataFrame(lateral, columns=RUN_COLUMNS))
 
 
+#: The estimator behind each observation group: groups of one estimator share its error.
+ESTIMATOR = {"sweep/omega": "encoder speed", "forward/w": "encoder speed", "lateral/w": "encoder speed",
+             "forward/forward": "tape", "lateral/forward": "tape", "lateral/left": "tape",
+             "sweep/current": "current"}
+
+
+def expected_s2(group_s2: Mapping[str, float]) -> dict[str, float]:
+    """Noise scale (chi^2/dof) each group is expected to show: the fit's where the group has data;
+    before that, the largest one the fit found for a group of the same estimator (the encoder
+    speeds of the sweep and of the ground runs come from the same straight-line fit of encoder
+    angles, whose stated quantisation floor over-states a steadily turning encoder's error about
+    3-6 times on the simulated robot); 1 (the stated noise) when the estimator has no data yet."""
+    out = {g: float(v) for g, v in group_s2.items() if v and math.isfinite(v) and v > 0}
+    for g, est in ESTIMATOR.items():
+        seen = [out[h] for h, e in ESTIMATOR.items() if e == est and h in out]
+        if g not in out and seen:
+            out[g] = max(seen)
+    return out
+
+
 @dataclass
 class CandidateInformation:
     """Per-candidate information matrices (scaled parameters) and the scale used."""
@@ -111,7 +131,7 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     used &= ~slow
     s2 = np.ones(len(t))
     groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
-    for g, v in (group_s2 or {}).items():
+    for g, v in expected_s2(group_s2 or {}).items():
         if v and math.isfinite(v) and v > 0:
             s2[groups == g] = v
     pred.measured = f0.copy()

@@ -17,7 +17,10 @@ of Phi per second of cost. Operator actions to reach a world (flip, wheel swap, 
 discrete, so the greedy runs once per set of worlds, that set paying its setup up front, and
 the cheapest set that meets the targets wins. Stops when every target is predicted met (at
 `margin` of it), when no candidate lowers Phi, or at the budget; repetitions later choices
-made redundant are then removed. The worlds are ordered to need the fewest actions.
+made redundant are then removed. The convex optimum over real repetitions (optimal.py),
+rounded to whole pairs (integer parts completed by the greedy, pruned), competes with it; both
+are then improved by exchanging pairs for cheaper ones that keep every target met, and the
+cheaper design wins. The worlds are ordered to need the fewest actions.
 
 Identifiability: a target the data in hand plus every candidate cannot separate (a null
 direction of their information) is refused, with the experiment that would separate it; a
@@ -37,6 +40,7 @@ import numpy as np
 from omnibench.analysis.design.information import (
     PRIOR_SD, CandidateInformation, candidate_information, prior_information,
 )
+from omnibench.analysis.design.optimal import cheapest_weights
 from omnibench.analysis.design.space import (
     ACTION_WORDS, Candidate, Costs, Space, sequence_actions,
 )
@@ -285,9 +289,18 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
         if sum(setup_acts.values()) > budget_actions or rest > budget_seconds:
             continue
         ks = np.array([k for k in np.flatnonzero(info.usable) if cands[k].world in ws], dtype=int)
-        chosen, M, spent_s, spent_a, why = _greedy(M0, info.info, cands, ks, req, tidx, t2, costs, max_units,
-                                                   budget_seconds - rest, budget_actions - sum(setup_acts.values()))
+        bs, ba = budget_seconds - rest, budget_actions - sum(setup_acts.values())
+        chosen, M, spent_s, spent_a, why = _greedy(M0, info.info, cands, ks, req, tidx, t2, costs, max_units, bs, ba)
         chosen, M = _prune(chosen, M, infos=info.info, cands=cands, req=req, tidx=tidx, t2=t2, costs=costs)
+        chosen, M = _exchange(chosen, M, infos=info.info, cands=cands, ks=ks, req=req, tidx=tidx, t2=t2, costs=costs)
+        greedy_total = costs.of(rest, setup_acts) + _units_cost(chosen, cands, costs)
+        rounded = None
+        if not _misses(M, tidx, t2) and (best is None or best[0][0] or greedy_total <= GATE * best[0][2]):
+            rounded = _continuous(M0, info.info, cands, _columns(M, info.info, ks, chosen, req, tidx, t2, cands, costs),
+                                  req, tidx, t2, costs, max_units, bs, ba)
+        if rounded is not None and (_misses(rounded[1], tidx, t2), _units_cost(rounded[0], cands, costs)) < (
+                _misses(M, tidx, t2), _units_cost(chosen, cands, costs) - 1e-9):
+            chosen, M, why = rounded  # the rounded convex optimum: cheaper (or meets what the greedy missed)
         phi = _phi(M, tidx, t2) if len(tidx) else 0.0
         total = costs.of(rest, setup_acts) + sum(costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) * r
                                                  for k, r in chosen.items())
@@ -371,6 +384,72 @@ def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: n
     return chosen, M, spent_s, spent_a, "stopped at the step limit"
 
 
+def _misses(M: np.ndarray, tidx: np.ndarray, t2: np.ndarray) -> bool:
+    return bool(len(tidx)) and _phi(M, tidx, t2) > len(tidx) + 1e-9
+
+
+def _units_cost(chosen: Mapping[int, int], cands: Sequence[Candidate], costs: Costs) -> float:
+    return sum(costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) * r for k, r in chosen.items())
+
+
+#: The convex optimum is solved only for a set of worlds where the greedy meets the targets, at a
+#: cost of at most GATE times the best design so far (it rarely saves more than a third; the
+#: solve is the planner's dearest step).
+GATE = 1.5
+#: Candidates the convex optimum is solved over (the solver's cost grows fast with their number).
+COLUMNS = 30
+
+
+def _columns(M: np.ndarray, infos: np.ndarray, ks: np.ndarray, chosen: Mapping[int, int], required: Sequence[int],
+             tidx: np.ndarray, t2: np.ndarray, cands: Sequence[Candidate], costs: Costs) -> np.ndarray:
+    """The candidates worth solving over: the greedy's and the required ones, and the COLUMNS that
+    shrink the weighted target variances most per second of cost at the greedy's design
+    (the directional derivative of the weighted A-criterion, sum_i (V M_k V)_ii / t_i^2)."""
+    try:
+        V = np.linalg.inv(M)[:, tidx]
+    except np.linalg.LinAlgError:
+        return ks
+    gain = np.einsum("ni,knm,mi->k", V, infos[ks], V / t2[None, :])
+    unit = np.array([costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) for k in ks])
+    top = ks[np.argsort(-gain / unit)[:COLUMNS]]
+    keep = set(int(k) for k in top) | {int(k) for k in chosen} | {int(k) for k in required}
+    return np.array([k for k in ks if int(k) in keep], dtype=int)
+
+
+def _continuous(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: np.ndarray,
+                required: Sequence[int], tidx: np.ndarray, t2: np.ndarray, costs: Costs, max_units: int,
+                budget_s: float, budget_a: float) -> tuple[dict[int, int], np.ndarray, str] | None:
+    """The convex optimum over real repetitions (optimal.cheapest_weights), rounded to whole pairs:
+    its integer parts, completed by the greedy (from there, over the candidates the optimum uses
+    first), then pruned. None when the optimum is not found or the rounded design misses a
+    target the greedy's reach."""
+    if not len(tidx) or not len(ks):
+        return None
+    unit = np.array([costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) for k in ks])
+    lo = np.array([float(sum(1 for r in required if r == k)) for k in ks])
+    hi = np.full(len(ks), float(MAX_REPS))
+    w = cheapest_weights(M0, infos[ks], unit, tidx, t2, lo, np.maximum(hi, lo))
+    if w is None:
+        return None
+    base = [int(k) for k, x in zip(ks, w) for _ in range(int(math.floor(x + 1e-6)))]
+    base += [k for k in required if k not in base]
+    support = np.array([k for k, x in zip(ks, w) if x > 1e-3], dtype=int)
+    best = None
+    # complete the integer parts over the optimum's own candidates, or over all (a fraction of a dear
+    # step is often bought cheaper as a whole cheap one); prune; keep the cheaper that meets the targets
+    for pool in (support, ks):
+        chosen, M, spent_s, spent_a, why = _greedy(M0, infos, cands, pool, base, tidx, t2, costs, max_units,
+                                                   budget_s, budget_a)
+        if spent_s > budget_s + 1e-9 or spent_a > budget_a + 1e-9:
+            continue
+        chosen, M = _prune(chosen, M, infos=infos, cands=cands, req=required, tidx=tidx, t2=t2, costs=costs)
+        chosen, M = _exchange(chosen, M, infos=infos, cands=cands, ks=ks, req=required, tidx=tidx, t2=t2, costs=costs)
+        key = (_misses(M, tidx, t2), _units_cost(chosen, cands, costs))
+        if best is None or key < best[0]:
+            best = (key, (chosen, M, why))
+    return best[1] if best is not None else None
+
+
 def _prune(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands: Sequence[Candidate],
            req: Sequence[int], tidx: np.ndarray, t2: np.ndarray, costs: Costs) -> tuple[dict[int, int], np.ndarray]:
     """Drop repetitions the targets no longer need (greedy picks early steps that later ones make
@@ -386,6 +465,42 @@ def _prune(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands: S
                 break
             M = trial
             chosen[k] -= 1
+        if chosen.get(k) == 0:
+            del chosen[k]
+    return chosen, M
+
+
+def _exchange(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands: Sequence[Candidate],
+              ks: np.ndarray, req: Sequence[int], tidx: np.ndarray, t2: np.ndarray,
+              costs: Costs) -> tuple[dict[int, int], np.ndarray]:
+    """Exchange (Fedorov's idea, on whole pairs): replace one pair by the cheapest candidate of `ks`
+    that keeps every target met, dearest pair first, while that lowers the cost. Whole pairs
+    overshoot (one long run can carry several times what a target needs); a cheaper step often
+    carries enough."""
+    if not len(tidx) or not len(ks) or _phi(M, tidx, t2) > len(tidx) + 1e-9:
+        return chosen, M
+    chosen = dict(chosen)
+    unit = np.array([costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) for k in ks])
+    I = infos[ks]
+    for k in sorted(chosen, key=lambda k: -costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements})):
+        ck = costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements})
+        while chosen.get(k, 0) > (1 if k in req else 0):
+            cheaper = np.flatnonzero(unit < ck - 1e-9)
+            if not len(cheaper):
+                break
+            Ms = (M - infos[k])[None] + I[cheaper]
+            try:
+                V = np.linalg.inv(Ms)
+            except np.linalg.LinAlgError:
+                break
+            d = np.diagonal(V, axis1=-2, axis2=-1)[:, tidx]
+            ok = np.all(d >= 0, axis=1) & np.all(d <= t2 * (1 + 1e-9), axis=1)
+            if not ok.any():
+                break
+            j = int(cheaper[np.flatnonzero(ok)[np.argmin(unit[cheaper][ok])]])
+            M = M - infos[k] + I[j]
+            chosen[k] -= 1
+            chosen[int(ks[j])] = chosen.get(int(ks[j]), 0) + 1
         if chosen.get(k) == 0:
             del chosen[k]
     return chosen, M
