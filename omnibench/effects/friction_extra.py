@@ -20,7 +20,7 @@ import math
 
 from numba import njit
 
-from omnibench.model.context import CTX_SIGN_PHI
+from omnibench.model.context import CTX_MODE, CTX_SIGN_PHI
 from omnibench.model.smooth import sign_eps
 from omnibench.model.terms import Param, Term, register
 
@@ -31,9 +31,10 @@ def stribeck_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     b_s, w_s, c_s = p[0], p[1], p[2]
     if b_s == 0.0:
         return
-    # Rounded over max(sign width, w_s / 2): keeps the term no stiffer at zero speed than the
-    # paper's Coulomb friction, so the integrator's step stays stable (the hump peaks near w_s/2).
-    eps = max(ctx[CTX_SIGN_PHI], 0.5 * w_s)
+    # On the ground rounded over max(sign width, w_s / 2): keeps the term no stiffer at zero
+    # speed than the paper's Coulomb friction (the hump peaks near w_s/2). Upside down the sign
+    # is exact like every dry term there (the kernel's stick-slip decides at zero speed).
+    eps = max(ctx[CTX_SIGN_PHI], 0.5 * w_s * (1.0 - ctx[CTX_MODE]))
     for j in range(4):
         x = phi_dot[j] / w_s
         out[j] = -(1.0 + c_s * FN[j]) * b_s * math.exp(-x * x) * sign_eps(phi_dot[j], eps)
