@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 from scipy.optimize import brentq
 
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import predict_observations
 from omnibench.analysis.model_file import load_model, write_model
 from omnibench.analysis.observations import Observations, slope_fit
@@ -111,7 +112,7 @@ def test_from_runs_errors_are_one_line(tmp_path):
 def test_model_file_round_trip(tmp_path, robot, truth):
     from omnibench.analysis.fitting import fit
 
-    obs = Observations.simulated(truth, seed=2, procedures=["sweep"])
+    obs = simulated_observations(truth, seed=2, procedures=["sweep"])
     res = fit(robot, obs, ["a", "b", "c"])
     path = write_model(tmp_path / "model.toml", res, ["runs/x"])
     back, info = load_model(path)
