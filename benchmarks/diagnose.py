@@ -10,8 +10,8 @@ and clean worlds (`CLEAN`), each with a different sensor-noise seed per run.
                               figure that measures generalisation. The default.
     --generator model         the fit's own simulator (self-consistency)
 
-Printed per world: right effect first, fitted value within 3 SE of the truth (of the runs with
-the right effect first), no spurious second addition, the median held-out error ratio in the
+Printed per world: right effect first, fitted size within 3 SE of the truth (over all runs;
+n/a for a form whose size parameter the library's form does not share), no spurious second addition, the median held-out error ratio in the
 procedure it shows in; pairs: both found; out-of-library: "unexplained" with nothing added;
 clean: worlds with any addition.
 
@@ -41,7 +41,7 @@ def _worlds(generator: str) -> list[tuple[str, str, object, dict, tuple[str, ...
     out = []
     for name, spec in REVEALING.items():
         eff = EFFECTS[name]
-        out.append(("effect", name, spec, eff.world(), (name,), {f"{name}.{p}": eff.example[p] for p in eff.fit}))
+        out.append(("effect", name, spec, eff.world(), (name,), {f"{name}.{p}": eff.example[p] for p in eff.size_params}))
     if generator == "independent":
         for label, (spec, world, truth) in FORMS.items():
             out.append(("effect", label, spec, world, (label.split(":")[0],), truth))
@@ -70,7 +70,8 @@ def _one(job: tuple) -> dict:
     covered = None
     if kind == "effect" and names and names[0] == expected[0]:
         c = d.selected[0]
-        covered = all(abs(c.values[k] - v) <= 3 * c.se[k] for k, v in truth.items() if k in c.values)
+        checked = [k for k in truth if k in c.values]
+        covered = all(abs(c.values[k] - truth[k]) <= 3 * c.se[k] for k in checked) if checked else None
     ratios = []
     for name in expected:
         if name in EFFECTS:
@@ -134,9 +135,11 @@ def main(argv: list[str] | None = None) -> int:
             want = label.split(":")[0].split(" ")[0]
             first = sum(bool(r["selected"]) and r["selected"][0] == want for r in rs)
             cover = sum(bool(r["covered"]) for r in rs)
+            checked = sum(r["covered"] is not None for r in rs) or not first
             alone = sum(len(r["selected"]) <= 1 for r in rs)
-            row.update(right_first=first, within_3se=cover, no_second=alone)
-            print(f"{label:<34} {first:>5}/{n:<5} {cover:>4}/{n:<3} {alone:>3}/{n:<3} {med:>9.3f}  {pick_s}")
+            row.update(right_first=first, within_3se=cover if checked else None, no_second=alone)
+            cover_s = f"{cover:>4}/{n:<3}" if checked else f"{'n/a':>8}"
+            print(f"{label:<34} {first:>5}/{n:<5} {cover_s} {alone:>3}/{n:<3} {med:>9.3f}  {pick_s}")
         elif kind == "pair":
             want = set(label.split(":")[1].split("+")) if ":" in label else set()
             both = sum(want <= set(r["selected"]) for r in rs)

@@ -6,14 +6,15 @@ It shares no numerical shortcut with `omnibench.model` (the fit's simulator):
 - integrator: plain numpy vectorised over trajectories (no numba kernel, no RK4, no sub-step
   rule), fixed steps. Wheels in the air (H_UP = 0.5 ms): each step solved exactly for frozen
   drive and friction (exponential decay to the sliding speed, the zero crossing located inside
-  the step). On the ground (H_GROUND = 1 ms): linearly implicit Euler on the body speeds;
+  the step). On the ground (H_GROUND = 0.5 ms): linearly implicit Euler on the body speeds;
+  battery energy and winding heat by the trapezoid rule over each step;
 - dry friction: upside down, exact Coulomb friction by time stepping (Moreau): a wheel whose
   momentum plus one step's impulse of every other torque is within the breakaway impulse
   h F_static stops dead, otherwise it slides with the exact sign; static friction is the sliding
   friction at zero speed (Stribeck: b + b_s). On the ground, linearly implicit Euler with a sign
   of width GROUND_SIGN_WIDTH (100 x sharper than the model's regularisation);
-- effect forms the library does not have: a deadband that cuts (`form` 1: u below u_0 gives 0,
-  above it passes unchanged) as well as the shifted one (`form` 0, the library's), a Stribeck
+- effect forms written their own way: a deadband that cuts (`cut` 1: u below u_0 gives 0,
+  above it passes unchanged, a hard edge) as well as the shifted one (`cut` 0), a Stribeck
   decay of any exponent (`shape`: 2 Gaussian, 1 exponential), asymmetric Coulomb friction that
   scales with the axle load like b, winding heating with its thermal time constant, a battery
   resistance that may grow with current (`k_i`, 1/A);
@@ -40,7 +41,7 @@ from omnibench.model.geometry import inverse_kinematics, rotation, slip_matrix, 
 from omnibench.model.scenario import Scenario, operator_change
 
 H_UP = 5e-4  # s, the fixed step with the wheels in the air (exact between events)
-H_GROUND = 1e-3  # s, the fixed step on the ground (linearly implicit Euler)
+H_GROUND = 5e-4  # s, the fixed step on the ground (linearly implicit Euler)
 GROUND_SIGN_WIDTH = 1e-3  # rad/s for wheel speeds; / 10 in m/s for roller slip
 OUT_OF_LIBRARY = ("wheel_radius", "bent_axle", "set_screw")
 
@@ -89,7 +90,7 @@ def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
         if "wheel_radius" in ef:  # one wheel rolls on a radius `scale` times the others'
             j = int(_p(ef, "wheel_radius", "wheel", 1)) - 1
             Rm[b, j] = R0[j] / _p(ef, "wheel_radius", "scale", 1.0)
-        e["u_0"][b], e["form_u"][b] = _p(ef, "driver_deadband", "u_0"), _p(ef, "driver_deadband", "form")
+        e["u_0"][b], e["form_u"][b] = _p(ef, "driver_deadband", "u_0"), _p(ef, "driver_deadband", "cut")
         e["b_s"][b], e["w_s"][b] = _p(ef, "stribeck_friction", "b_s"), _p(ef, "stribeck_friction", "w_s", 1.0)
         e["c_s"][b], e["shape"][b] = _p(ef, "stribeck_friction", "c_s", 0.01), _p(ef, "stribeck_friction", "shape", 2.0)
         e["db"][b] = _p(ef, "asymmetric_coulomb", "db")
@@ -214,6 +215,7 @@ class IndependentPhysics:
         friction, else it reverses for the rest of the step."""
         r, e, h = self.robot, self.w.e, H_UP
         w = self.wd
+        self._speed_start = w
         V, G = self._electrical(u, w)
         d = r.eta * r.k_t * r.k_e * G + self.d_lin
         tau0 = r.eta * r.k_t * u * V[:, None] * G
@@ -245,6 +247,7 @@ class IndependentPhysics:
         r, e, Rm, Sm = self.robot, self.w.e, self.w.Rm, self.w.Sm
         v = self.v
         phid = np.einsum("bjk,bk->bj", Rm, v)
+        self._speed_start = phid + self.slip_rate
         sig = v @ Sm.T
         V, G = self._electrical(u, phid)
         FN = self.w.FN
@@ -299,15 +302,31 @@ class IndependentPhysics:
         return tau, dtau
 
     def _book(self, m, u, V, G, wheel_speed, motor_speed, h: float) -> None:
+        """Currents at the end of the step; battery energy and winding heat by the trapezoid rule
+        over the step (the start values are the last step's end values, at the step's duties)."""
         r, e = self.robot, self.w.e
         i = (u * V[:, None] - r.k_e * motor_speed) * G
         I = np.sum(u * i, axis=1) + (r.I_0 + e["I_q"])
-        self.i[m], self.V[m], self.I_batt[m] = i[m], V[m], I[m]
-        self.E_batt[m] += h * V[m] * I[m]
+        i_start = (u * V[:, None] - r.k_e * self._speed_start) * G
+        I_start = np.sum(u * i_start, axis=1) + (r.I_0 + e["I_q"])
+        self.E_batt[m] += (0.5 * h * V * (I + I_start))[m]
         if self.on["heat"]:
-            heat = (e["theta"][:, None] * i ** 2 * (1.0 + e["alpha_cu"][:, None] * self.dT) - self.dT) / np.maximum(
+            i2 = 0.5 * (i ** 2 + i_start ** 2)
+            heat = (e["theta"][:, None] * i2 * (1.0 + e["alpha_cu"][:, None] * self.dT) - self.dT) / np.maximum(
                 e["tau_th"][:, None], 1e-9)
             self.dT[m] += h * np.where(e["theta"][:, None] > 0, heat, 0.0)[m]
+        self.i[m], self.V[m], self.I_batt[m] = i[m], V[m], I[m]
+
+    def currents(self, u_cmd: np.ndarray):
+        """(motor currents (B, 4), V_batt, I_batt) at this instant under duties u_cmd: the current
+        has no inductance here, so it jumps with a duty change; a sample taken at a switch reads
+        the new duty's current."""
+        r, e = self.robot, self.w.e
+        u = self._duty(np.asarray(u_cmd, dtype=float))
+        speed = self.phi_dot()
+        V, G = self._electrical(u, speed)
+        i = (u * V[:, None] - r.k_e * speed) * G
+        return i, V, np.sum(u * i, axis=1) + (r.I_0 + e["I_q"])
 
     def phi_dot(self) -> np.ndarray:
         """Motor-side wheel speeds (what the encoders see), rad/s."""
@@ -330,12 +349,13 @@ class IndependentResult:
         return self.data[name]
 
 
-def _record(ph: IndependentPhysics) -> dict:
+def _record(ph: IndependentPhysics, u_cmd: np.ndarray) -> dict:
     pd_ = ph.phi_dot()
+    i, V, I = ph.currents(u_cmd)
     out = {"x": ph.q[:, 0], "y": ph.q[:, 1], "psi": ph.q[:, 2], "v1": ph.v[:, 0], "v2": ph.v[:, 1],
-           "psi_dot": ph.v[:, 2], "V_batt": ph.V, "I_batt": ph.I_batt, "E_batt": ph.E_batt}
+           "psi_dot": ph.v[:, 2], "V_batt": V, "I_batt": I, "E_batt": ph.E_batt}
     for j in range(4):
-        out[f"phi{j + 1}"], out[f"phi_dot{j + 1}"], out[f"i{j + 1}"] = ph.phi[:, j], pd_[:, j], ph.i[:, j]
+        out[f"phi{j + 1}"], out[f"phi_dot{j + 1}"], out[f"i{j + 1}"] = ph.phi[:, j], pd_[:, j], i[:, j]
     return {k: np.array(v, dtype=float) for k, v in out.items()}
 
 
@@ -353,14 +373,17 @@ def simulate_batch(robots, scenarios, t_cmd, u_cmd, t_end: float, *, dt: float =
     ph = IndependentPhysics(robot, scen)
     per = max(1, int(round(dt / ph.h)))
     n_steps = int(round(t_end / dt))
-    recs = [_record(ph)]
+    cmd = lambda n: U[:, k] if (k := int(np.searchsorted(t_cmd, n * dt + 1e-9, side="right")) - 1) >= 0 \
+        else np.zeros((B, 4))  # noqa: E731
+    u = cmd(0)
+    recs = [_record(ph, u)]
     for n in range(n_steps):
-        k = np.searchsorted(t_cmd, n * dt + 1e-9, side="right") - 1
-        u = U[:, max(k, 0)] if k >= 0 else np.zeros((B, 4))
         for _ in range(per):
             ph.step(u)
+        u_next = cmd(min(n + 1, n_steps - 1))
         if (n + 1) % record_every == 0:
-            recs.append(_record(ph))
+            recs.append(_record(ph, u_next))
+        u = u_next if u_next is not u else u
     t = np.arange(len(recs)) * record_every * dt
     return IndependentResult(t, {k: np.stack([r[k] for r in recs], axis=1) for k in recs[0]})
 

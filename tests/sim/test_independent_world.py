@@ -57,7 +57,7 @@ def test_effect_forms_differ_from_the_librarys():
     """A deadband that cuts leaves duties above u_0 untouched; the shifted one subtracts u_0."""
     robot = default_robot()
     FN = robot.wheel_mass[0] * GRAVITY
-    scen = [Scenario(mode="upside_down", effects={"driver_deadband": {"u_0": 0.1, "form": f}}) for f in (0.0, 1.0)]
+    scen = [Scenario(mode="upside_down", effects={"driver_deadband": {"u_0": 0.1, "cut": f}}) for f in (0.0, 1.0)]
     res = independent.simulate_batch(robot, scen, [0.0], [[0.3, 0.08, -0.3, 0.0]], 0.6, record_every=100)
     w = res.signal("phi_dot1")[:, -1]
     assert w[0] == pytest.approx(upside_down_steady_speed(robot, 0.2, FN), rel=1e-6)  # shifted
