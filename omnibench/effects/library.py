@@ -82,7 +82,7 @@ EFFECTS: dict[str, Effect] = {
            separates={"stribeck_friction": "repeat the sweep with a heavier wheel set (deadband is "
                       "load independent) or log the motor current (deadband does not change it)"}),
         _E("asymmetric_coulomb", fit=("db",), example={"db": 0.06}, start={"db": 0.0}, fixed={"c_db": 0.01},
-           procedures=("upside_down_sweep",), variable="direction",
+           procedures=("upside_down_sweep", "forward_runs"), variable="direction",
            separates={"per_wheel_friction": "run the sweep in both directions",
                       "floor_slope": "run the sweep upside down (a slope cannot act there, gearbox "
                       "asymmetry does) or repeat the forward runs with a payload (the slope force grows "
