@@ -111,7 +111,7 @@ UPSIDE_CASES = {
     # name: (effect values, extra torque on the axle as a function of (w, wheel index, F_N))
     "stribeck_friction": ({"b_s": 0.25, "w_s": 1.0, "c_s": 0.01},
                           lambda w, j, F: -(1 + 0.01 * F) * 0.25 * math.exp(-w * w) * _sgn(w, EXACT_SIGN_WIDTH)),
-    "asymmetric_coulomb": ({"db": 0.06}, lambda w, j, F: -0.06 * abs(_sgn(w, EXACT_SIGN_WIDTH))),
+    "asymmetric_coulomb": ({"db": 0.06}, lambda w, j, F: -(1 + 0.01 * F) * 0.06 * abs(_sgn(w, EXACT_SIGN_WIDTH))),
     "per_wheel_friction": ({"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05,
                             "da_1": 0.002, "da_2": 0.0, "da_3": -0.003, "da_4": 0.001},
                            lambda w, j, F: -(0.0, 0.08, -0.06, 0.05)[j] * _sgn(w, EXACT_SIGN_WIDTH) - (0.002, 0.0, -0.003, 0.001)[j] * w),
