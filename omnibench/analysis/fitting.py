@@ -57,7 +57,7 @@ from omnibench.errors import UserError
 
 CORE = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
 MOTOR = ("k_t", "k_e", "R_a", "eta", "I_0", "I_w")
-FITTABLE_FIELDS = CORE + MOTOR
+FITTABLE_FIELDS = CORE + MOTOR + ("V_batt",)  # V_batt: a run's supply where it was not logged (sessions.py)
 #: Singular values below this fraction of the largest are directions the data cannot see.
 RANK_TOL = 1e-6
 #: A free parameter and a fixed constant are "not separable" when adding the constant's column
@@ -68,9 +68,9 @@ CONFOUND_TOL = 1e-3
 MIN_SWEEP_SPEED_WIDTHS = 3.0
 #: Typical magnitudes (SI) used to scale parameters and finite-difference steps.
 TYPICAL = {"a": 0.01, "b": 0.5, "c": 0.01, "a_r": 2.0, "b_r": 1.0, "c_r": 0.01, "C_r": 0.02,
-           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1, "I_w": 0.003}
+           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1, "I_w": 0.003, "V_batt": 24.0}
 UNITS = {"a": "N m s/rad", "b": "N m", "c": "1/N", "a_r": "N s/m", "b_r": "N", "c_r": "1/N", "C_r": "1",
-         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A", "I_w": "kg m^2"}
+         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A", "I_w": "kg m^2", "V_batt": "V"}
 FD_STEP = 1e-5  # relative (to the parameter's scale) forward-difference step
 DEFAULT_PROCEDURES = ("sweep", "forward", "lateral")
 
@@ -177,14 +177,17 @@ def default_free(robot: Any, obs: Observations, procedures: Sequence[str] | None
 @dataclass(frozen=True)
 class Verdict:
     """Identifiability of one parameter: status is 'identified', 'conditional' (identified only
-    given a fixed constant it cannot be separated from) or 'not identifiable'."""
+    given a fixed constant it cannot be separated from), 'at bound' (the fit stopped on a physical
+    bound or at zero: the data push it past what is physical, its SE means nothing) or
+    'not identifiable'."""
 
     status: str
     reason: str
 
     @property
     def ok(self) -> bool:
-        return self.status != "not identifiable"
+        """Estimated with a meaningful standard error (not 'not identifiable', not 'at bound')."""
+        return self.status in ("identified", "conditional")
 
     def __bool__(self) -> bool:
         return self.ok
@@ -281,7 +284,8 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
     """The paper's III.i least squares in the torque domain (a fast closed form; start values).
 
     Steady state upside down: tau_motor = (1 + c F_N)(a omega + b sign omega), with tau_motor =
-    eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a. Linear in
+    eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a (V_batt the
+    logged supply of the step where there is one, else the robot's). Linear in
     (a, b, a c, b c); returns a, b and c = (b c) / b (0 when a single load cannot separate it),
     plus `n` rows used."""
     df = sweep[np.abs(sweep["omega"]) > MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi]
@@ -293,7 +297,9 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
     if np.isfinite(cur).all():
         y = robot.eta * robot.k_t * cur
     else:
-        y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * robot.V_batt - robot.k_e * w) / robot.R_a
+        v = df["V_batt"].to_numpy(float) if "V_batt" in df else np.full(len(df), np.nan)
+        v = np.where(np.isfinite(v) & (v > 0), v, robot.V_batt)  # the logged supply where there is one
+        y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * v - robot.k_e * w) / robot.R_a
     s = np.sign(w)
     multi = np.ptp(F) > 1e-6 * max(1.0, float(np.max(F)))
     X = np.column_stack([w, s, F * w, F * s]) if multi else np.column_stack([w, s])
@@ -443,6 +449,23 @@ def _solve(prob: "_Problem", names: list[str], robot: Any, x0: np.ndarray, max_n
     sol = optimize.least_squares(prob.residual, x0, jac=prob.jacobian, bounds=(lo, hi), method="trf",
                                  x_scale=1.0, max_nfev=max_nfev, ftol=1e-7, xtol=1e-7, gtol=1e-9)
     return sol.x, prob.jacobian(sol.x)
+
+
+#: A fitted value within this fraction of its scale from a bound (or from zero) is pinned there.
+BOUND_TOL = 1e-6
+
+
+def _pinned(value: float, bounds: tuple[float, float], scale: float) -> str:
+    """'pinned at its lower bound 0' / '... at zero' when `value` sits on a bound or at zero, else ''."""
+    lo, hi = bounds
+    tol = BOUND_TOL * max(abs(scale), 1e-300)
+    if value - lo <= tol:
+        return f"pinned at its lower bound {lo:.4g}"
+    if hi - value <= tol:
+        return f"pinned at its upper bound {hi:.4g}"
+    if abs(value) <= tol:
+        return "pinned at zero"
+    return ""
 
 
 def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
@@ -627,6 +650,11 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                            "eta k_t k_e / R_a" if nu == "k_e" else ""))
             confounded.append({"fixed": nu, "with": [p for p in comb if p != nu], "ratio": ratio,
                                "combination": _combination(comb)})
+    for k, p in enumerate(active):
+        pinned = _pinned(values[p], param_bounds(robot, p), float(prob.scale[k]))
+        if pinned:
+            verdicts[p] = Verdict("at bound", f"{pinned}: the data push it past its physical range (check the "
+                                              "measurements that inform it); its standard error means nothing")
     for k, p in enumerate(active):
         if p not in verdicts:
             rel = se[p] / abs(values[p]) if values[p] else math.inf

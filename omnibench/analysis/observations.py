@@ -19,7 +19,9 @@ the simulation-based fits replay:
 ``energy`` (IV; one row per trajectory)
     run, step, trajectory, duration (s), t_total (s), payload (kg), measured_J (J, trapezoid of
     V_batt I_batt over the step; NaN if no current was logged), has_current.
-``step_response`` (imported square waves, wheels in the air; one row per constant-duty step)
+``step_response`` (imported traces replayed whole: square waves in the air or on the floor, the
+    random-duty RC log; one row per constant-duty step; the run's `mode`, firmware timing and
+    measured supply are in ``runs``)
     run, step, duty, t_start, t_end (s, board time), n.
 
 ``traces[(run, step)]``: the step's samples as a DataFrame with t (s since the step start; for
@@ -53,10 +55,11 @@ RUN_PROCEDURES = {
     "lateral_runs": "lateral",
     "energy_trajectories": "energy",
     "step_response": "step_response",
+    "random_duty": "step_response",  # a logged command trace replayed whole, like a step response
 }
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
-                 "current", "current_se", "n", "steady", "time"]
+                 "current", "current_se", "n", "steady", "time", "V_batt"]
 RUN_COLUMNS = (["run", "step", "u1", "u2", "u3", "u4", "duration", "t_total", "payload", "heading",
                 "measured_forward", "measured_left", "measured_se", "enc_forward", "enc_left"]
                + [f"dphi{j}" for j in range(1, 5)] + [f"w{j}" for j in range(1, 5)]
@@ -217,7 +220,13 @@ class Observations:
             if not found:
                 raise UserError(f"{p}: no run directory here (no run.json)")
             dirs.extend(found)
-        items = [_from_run(read_run(d), robot) for d in dirs]
+        items = []
+        seen: set[str] = set()
+        for d in dict.fromkeys(Path(x).resolve() for x in dirs):
+            run = read_run(d)
+            rid = run_key(run, seen)
+            seen.add(rid)
+            items.append(_from_run(run, robot, rid))
         return cls.concat(items)
 
 
@@ -268,12 +277,54 @@ def _col(steps: pd.DataFrame, name: str) -> pd.Series:
     return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
 
 
-def _from_run(run: Any, robot: Any) -> Observations:
+def run_key(run: Any, taken: set[str] | frozenset[str] = frozenset()) -> str:
+    """The key a run's rows carry: its run id, made unique against `taken` with its folder
+    (older runs, and two runs copied from one, can share an id: never merge them by id alone)."""
+    rid = str(run.metadata.get("run_id") or run.path.name)
+    if rid not in taken:
+        return rid
+    rid = f"{rid}@{run.path.parent.name}/{run.path.name}"
+    n = 2
+    key = rid
+    while key in taken:
+        key, n = f"{rid}#{n}", n + 1
+    return key
+
+
+def supply_at_rest(samples: pd.DataFrame) -> float:
+    """The run's measured supply, V: median logged V_batt while every duty is 0 (no motor current,
+    so no sag through the battery's resistance), else over all samples; NaN if never logged."""
+    if not len(samples) or "V_batt" not in samples:
+        return float("nan")
+    v = samples["V_batt"].to_numpy(dtype=float)
+    u = samples[["u1", "u2", "u3", "u4"]].to_numpy(dtype=float)
+    ok = np.isfinite(v) & (v > 0)
+    rest = ok & np.all(np.nan_to_num(u) == 0, axis=1)
+    sel = rest if rest.any() else ok
+    return float(np.median(v[sel])) if sel.any() else float("nan")
+
+
+def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """Where the robot was and how its firmware timed the commands (runs.tfm records both):
+    `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s)."""
+    out: dict[str, Any] = {}
+    if meta.get("mode") in ("ground", "upside_down"):
+        out["mode"] = meta["mode"]
+    ft = meta.get("firmware_timing")
+    if isinstance(ft, Mapping):
+        order = ft.get("command_order")
+        if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
+            out["command_order"] = tuple(int(w) for w in order)
+        out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
+    return out
+
+
+def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
         raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
                         f"({', '.join(RUN_PROCEDURES)})")
-    rid = str(run.metadata.get("run_id") or run.path.name)
+    rid = rid or run_key(run)
     rb = _run_robot(run, robot)
     cpr = float(run.metadata.get("counts_per_rev") or rb.counts_per_rev)
     imported = bool(run.metadata.get("imported", False))
@@ -282,6 +333,8 @@ def _from_run(run: Any, robot: Any) -> Observations:
     info = {"procedure": run.procedure, "path": str(run.path), "status": run.status,
             "counts_per_rev": cpr, "source": run.metadata.get("source"), "imported": imported,
             "duty_timing": str(run.metadata.get("duty_timing") or ("from_sample" if imported else "interval_before"))}
+    info.update(_firmware_timing(run.metadata))
+    info["V_batt"] = supply_at_rest(run.samples)
     obs = Observations(runs={rid: info})
     steps = run.steps
     if not len(steps):
@@ -328,6 +381,7 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
         n = 0
         w_se = np.full(4, np.nan)
         i_se = np.full(4, np.nan)
+        v_batt = supply_at_rest(run.samples)
         if len(s) >= 4:
             t = s["t"].to_numpy(dtype=float)
             t_end = _num(st.get("t_end"))
@@ -365,7 +419,7 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
                          "F_N": mass * GRAVITY, "omega": w, "omega_se": float(w_se[j]),
                          "current": cur, "current_se": float(i_se[j]) if math.isfinite(cur) else float("nan"),
                          "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True,
-                         "time": _num(st.get("t_end"))})
+                         "time": _num(st.get("t_end")), "V_batt": v_batt})
     df = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
     return df
 

@@ -2,7 +2,8 @@
 
 `replay(robot, obs, run, step)` simulates one logged step (or a whole step-response run) with the
 duties the board logged (zero-order hold between samples), in the world of its procedure
-(upside down for sweeps and step responses, on the ground with the payload otherwise), and
+(upside down for sweeps and step responses in the air, on the ground for step responses on
+the floor and with the payload otherwise; the run's measured supply and firmware timing), and
 returns measured and predicted signals at the sample times.
 
 `predict_runs(robot, obs)` gives, per run, the NRMSE of every signal that was measured:
@@ -26,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations
-from omnibench.analysis.predictor import commands_from_trace
+from omnibench.analysis.predictor import commands_from_trace, run_mode, with_supply
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate
 
@@ -45,21 +46,25 @@ def nrmse(measured: np.ndarray, predicted: np.ndarray) -> float:
 
 
 def _scenario(obs: Observations, proc: str, run: str, step: int) -> Scenario:
+    order = obs.runs.get(run, {}).get("command_order")
     if proc in ("sweep", "step_response"):
         if proc == "sweep" and len(obs.sweep):
             rows = obs.sweep[(obs.sweep["run"] == run) & (obs.sweep["step"] == step)]
             if len(rows) == 4:
-                return Scenario(mode="upside_down", wheel_mass=tuple(rows.sort_values("wheel")["wheel_mass"]))
-        return Scenario(mode="upside_down")
+                return Scenario(mode="upside_down", wheel_mass=tuple(rows.sort_values("wheel")["wheel_mass"]),
+                                command_order=order)
+        return Scenario(mode=run_mode(obs, run) if proc == "step_response" else "upside_down", command_order=order)
     table = obs.table(proc)
     rows = table[(table["run"] == run) & (table["step"] == step)]
     payload = float(rows["payload"].iloc[0]) if len(rows) and math.isfinite(rows["payload"].iloc[0]) else 0.0
-    return Scenario(mode="ground", payload=payload)
+    return Scenario(mode="ground", payload=payload, command_order=order)
 
 
-def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "from_sample") -> pd.DataFrame:
+def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "from_sample",
+           offset: float = 0.0) -> pd.DataFrame:
     """Simulate the trace's logged duties (`timing`: see predictor.DUTY_TIMINGS); measured and
-    predicted signals at the sample times.
+    predicted signals at the sample times. `offset` (s) shifts the logged schedule (the
+    firmware's command offset, predictor.run_commands).
 
     Columns: t, phi{j}_meas / phi{j}_pred (rad since the first sample), w{j}_meas / w{j}_pred
     (rad/s, successive-reading differences, at the interval midpoints; last row NaN),
@@ -70,6 +75,7 @@ def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "f
     t0 = t[0]
     ts = t - t0
     t_cmd, U = commands_from_trace(tr.assign(t=ts), timing)
+    t_cmd = t_cmd + offset
     shift = max(0.0, -float(t_cmd[0]))
     sim = simulate(robot, scenario, t_cmd + shift, U, float(ts[-1]) + shift + 2 * PHYSICS_DT, dt=PHYSICS_DT)
     st = sim["t"].to_numpy() - shift
@@ -140,7 +146,10 @@ def predict_runs(robot: Any, obs: Observations) -> list[RunPrediction]:
             b.append(np.asarray(p, dtype=float).ravel())
 
         for step, tr in _trace_groups(sub, run, proc).items():
-            rep = replay(robot, tr, _scenario(sub, proc, run, step), duty_timing(obs, run))
+            info = obs.runs.get(run, {})
+            rep = replay(with_supply(robot, float(info.get("V_batt", float("nan")))), tr,
+                         _scenario(sub, proc, run, step), duty_timing(obs, run),
+                         float(info.get("command_offset", 0.0) or 0.0))
             rp.traces[step] = rep
             add("wheel_speed", rep[[f"w{j}_meas" for j in range(1, 5)]].to_numpy(),
                 rep[[f"w{j}_pred" for j in range(1, 5)]].to_numpy())

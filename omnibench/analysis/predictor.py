@@ -53,14 +53,16 @@ class _Group:
     schedules: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (t_cmd (K,), U (K, 4))
     t_ends: list[float] = field(default_factory=list)  # s, in the schedules' frame
     scen: list[Scenario] = field(default_factory=list)
+    v_batt: list[float] = field(default_factory=list)  # V, logged supply per trajectory (NaN: the robot's)
     # after simulating: how to turn the recorded signals of trajectory k into entries
     extract: list[Any] = field(default_factory=list)
     _built: tuple | None = None
 
-    def add(self, t_cmd, U, t_end: float, scen: Scenario, extract: Any) -> None:
+    def add(self, t_cmd, U, t_end: float, scen: Scenario, extract: Any, v_batt: float = float("nan")) -> None:
         self.schedules.append((np.asarray(t_cmd, dtype=float), np.asarray(U, dtype=float)))
         self.t_ends.append(float(t_end))
         self.scen.append(scen)
+        self.v_batt.append(float(v_batt))
         self.extract.append(extract)
         self._built = None
 
@@ -104,6 +106,20 @@ class Predictor:
         """Duty timing convention of a run (see DUTY_TIMINGS)."""
         return str(self.obs.runs.get(run, {}).get("duty_timing", "from_sample"))
 
+    def commands(self, tr: pd.DataFrame, run: str) -> tuple[np.ndarray, np.ndarray]:
+        """The run's logged duties as a schedule (`run_commands`)."""
+        return run_commands(self.obs, run, tr)
+
+    def supply(self, run: str) -> float:
+        """The run's measured supply at rest, V (observations.supply_at_rest; NaN: the robot's)."""
+        return float(self.obs.runs.get(run, {}).get("V_batt", float("nan")))
+
+    def scenario(self, run: str, **kw: Any) -> Scenario:
+        """The run's world: `kw` (mode, payload, wheel masses), the world effects, and the
+        firmware's send order when the run records one."""
+        return Scenario(effects=self.world_effects, command_order=self.obs.runs.get(run, {}).get("command_order"),
+                        **kw)
+
     def _build_sweep(self, df: pd.DataFrame) -> None:
         for (run, step), rows in df.groupby(["run", "step"], sort=False):
             U = np.zeros(4)
@@ -125,8 +141,9 @@ class Predictor:
                 if math.isfinite(r["current"]):
                     k = self._add(signal="current", unit="A", measured=r["current"], sigma=r["current_se"], **meta)
                     idx.append(("current", j, k))
-            g.add([0.0], U[None, :], SWEEP_HOLD, Scenario(mode="upside_down", wheel_mass=masses,
-                                                         effects=self.world_effects), ("sweep", idx))
+            vb = rows["V_batt"].to_numpy(dtype=float) if "V_batt" in rows else np.full(1, np.nan)
+            g.add([0.0], U[None, :], SWEEP_HOLD, self.scenario(run, mode="upside_down", wheel_mass=masses),
+                  ("sweep", idx), float(np.nanmedian(vb)) if np.isfinite(vb).any() else self.supply(run))
 
     def _build_timed(self, df: pd.DataFrame, proc: str) -> None:
         for _, r in df.iterrows():
@@ -137,7 +154,7 @@ class Predictor:
             g = self._group((proc,), int(round(RECORD_DT / PHYSICS_DT)))
             tr = self.obs.traces.get((r["run"], int(r["step"])))
             if tr is not None and len(tr) >= 3:
-                t_cmd, U = commands_from_trace(tr, self.timing(r["run"]))
+                t_cmd, U = self.commands(tr, r["run"])
                 # motors off after the last logged sample (the schedule ends with the trace)
                 t_cmd, U = np.append(t_cmd, max(tot, float(tr["t"].iloc[-1])) + RECORD_DT), np.vstack([U, np.zeros(4)])
             else:
@@ -160,8 +177,8 @@ class Predictor:
             nz = np.flatnonzero(np.any(U != 0, axis=1))
             t_off = float(t_cmd[nz[-1] + 1]) if nz.size and nz[-1] + 1 < len(t_cmd) else tot
             t_end = min(tot, max(t_off + COAST, float(r["w_t1"])))
-            g.add(t_cmd, U, t_end, Scenario(mode="ground", payload=float(r["payload"]), effects=self.world_effects),
-                  (proc, idx, (float(r["w_t0"]), float(r["w_t1"]))))
+            g.add(t_cmd, U, t_end, self.scenario(r["run"], mode="ground", payload=float(r["payload"])),
+                  (proc, idx, (float(r["w_t0"]), float(r["w_t1"]))), self.supply(r["run"]))
 
     def _build_forward(self, df: pd.DataFrame) -> None:
         self._build_timed(df, "forward")
@@ -174,15 +191,14 @@ class Predictor:
             tr = self.obs.traces.get((r["run"], int(r["step"])))
             if tr is None or not math.isfinite(r["t_total"]):
                 continue
-            t_cmd, U = commands_from_trace(tr, self.timing(r["run"]))
+            t_cmd, U = self.commands(tr, r["run"])
             key = ("energy", r["run"], int(r["step"]))
             g = self._group(key, 1)
             t_last = float(tr["t"].iloc[-1])
             k = self._add(procedure="energy", run=r["run"], step=int(r["step"]), wheel=0, signal="energy", unit="J",
                           measured=r["measured_J"], sigma=np.nan, payload=r["payload"])
-            g.add(t_cmd, U, t_last + PHYSICS_DT, Scenario(mode="ground", payload=float(r["payload"]),
-                                                         effects=self.world_effects),
-                  ("energy", [("energy", 0, k)], tr["t"].to_numpy(dtype=float)))
+            g.add(t_cmd, U, t_last + PHYSICS_DT, self.scenario(r["run"], mode="ground", payload=float(r["payload"])),
+                  ("energy", [("energy", 0, k)], tr["t"].to_numpy(dtype=float)), self.supply(r["run"]))
 
     def _build_step_response(self, df: pd.DataFrame) -> None:
         for run, rows in df.groupby("run", sort=False):
@@ -193,7 +209,7 @@ class Predictor:
             t = tr["t"].to_numpy(dtype=float)
             t0 = t[0]
             ts = t - t0
-            t_cmd, U = commands_from_trace(tr.assign(t=ts), self.timing(run))
+            t_cmd, U = self.commands(tr.assign(t=ts), run)
             key = ("step_response", run)
             g = self._group(key, 1)
             phi = tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(dtype=float)
@@ -209,8 +225,8 @@ class Predictor:
                                   direction=float(np.sign(u_log[n, j])), time=tm[n] + t0, u=u_log[n, j],
                                   payload=0.0)
                     idx.append(("omega_fd", j + 1, k))
-            g.add(t_cmd, U, float(ts[-1]) + PHYSICS_DT, Scenario(mode="upside_down", effects=self.world_effects),
-                  ("step_response", idx, ts))
+            g.add(t_cmd, U, float(ts[-1]) + PHYSICS_DT, self.scenario(run, mode=run_mode(self.obs, run)),
+                  ("step_response", idx, ts), self.supply(run))
 
     # ------------------------------------------------------------------------ predicting
     def __len__(self) -> int:
@@ -245,7 +261,7 @@ class Predictor:
             n = U.shape[0]
             skip = (same_as_first or {}).get(key, set())
             sims = [p for p in range(P) if p == 0 or p not in skip]
-            rob = [robots[p] for p in sims for _ in range(n)]
+            rob = [with_supply(robots[p], g.v_batt[k]) for p in sims for k in range(n)]
             res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
                                  dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
             slopes = self._drive_slopes(g, res, shift, len(sims))
@@ -327,6 +343,29 @@ class Predictor:
 #: a command sent after reading sample k-1 acts from t_k-1); "from_sample": the duty logged at t_k
 #: acts from t_k on (the 2019 Arduino logs: command printed, then applied).
 DUTY_TIMINGS = ("interval_before", "from_sample")
+
+
+def run_commands(obs: Observations, run: str, tr: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """A run's logged duties as a zero-order-hold schedule: `commands_from_trace` with the run's
+    duty timing, shifted by its firmware's command offset (s; runs.tfm: the 2019 RC sketch sent
+    a log line's commands before reading the encoders)."""
+    info = obs.runs.get(run, {})
+    t_cmd, U = commands_from_trace(tr, str(info.get("duty_timing", "from_sample")))
+    off = float(info.get("command_offset", 0.0) or 0.0)
+    return (t_cmd + off if math.isfinite(off) else t_cmd), U
+
+
+def run_mode(obs: Observations, run: str) -> str:
+    """Where a trace-replay run was: 'upside_down' (wheels in the air, the default) or 'ground'."""
+    return str(obs.runs.get(run, {}).get("mode", "upside_down"))
+
+
+def with_supply(robot: Any, v_batt: float) -> Any:
+    """`robot` with its supply voltage set to the logged one (unchanged when none was logged):
+    a campaign's battery sags, and a fixed nominal voltage biases a and k_e."""
+    if not math.isfinite(v_batt) or v_batt <= 0 or v_batt == robot.V_batt:
+        return robot
+    return robot.replace(V_batt=float(v_batt))
 
 
 def commands_from_trace(tr: pd.DataFrame, timing: str = "from_sample") -> tuple[np.ndarray, np.ndarray]:

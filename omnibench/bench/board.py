@@ -1,14 +1,14 @@
 """What the procedures need from a motor board, and nothing about bytes.
 
-`BenchBoard` is the interface the runner drives; `open_bench_board(url)` adapts the board
-client of omnibench.link (real serial port, `sim://` simulated board, or the pseudo-terminal
-of `omnibench sim serve`) to it. Tests may pass any object with these methods.
+`BenchBoard` is the interface the runner drives. `omnibench.bench.link_adapter` implements it
+over the board client of omnibench.link (real serial port, `sim://` simulated board, or the
+pseudo-terminal of `omnibench sim serve`); tests may pass any object with these methods.
+This module imports nothing of the link (the adapter imports it, not the other way round).
 """
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Mapping, Protocol
 
@@ -39,9 +39,21 @@ class BenchBoard(Protocol):
 
     def reset_encoders(self) -> None: ...
 
-    def set_duties(self, duties: Sequence[float]) -> None: ...
+    def latched_faults(self) -> int:
+        """Fault bits latched on the board now (telemetry on)."""
+        ...
 
-    def stop(self) -> None: ...
+    def clear_faults(self) -> None:
+        """Clear latched faults; called only after the operator agreed."""
+        ...
+
+    def set_duties(self, duties: Sequence[float]) -> float | None:
+        """Apply four duties; returns the board time (s) they were applied (None: unknown)."""
+        ...
+
+    def stop(self) -> float | None:
+        """Stop the motors; returns the board time (s) of the stop (None: unknown)."""
+        ...
 
     def read(self, timeout: float) -> Telemetry:
         """The next telemetry sample (BoardError if none within `timeout` host seconds)."""
@@ -52,7 +64,7 @@ class BenchBoard(Protocol):
         ...
 
     def keepalive(self) -> None:
-        """Tell the watchdog the host is alive (with the motors stopped)."""
+        """Feed the board's watchdog: the runner calls it from its loop as it makes progress."""
         ...
 
     def sim_set_world(self, *, mode: str | None = None, payload: float | None = None,
@@ -61,13 +73,3 @@ class BenchBoard(Protocol):
     def sim_truth(self) -> tuple[float, float, float]:
         """True pose (x m, y m, psi rad) of the simulated robot."""
         ...
-
-
-@contextlib.contextmanager
-def open_bench_board(url: str, timeout: float = 2.0, ammeter: str | None = None) -> Iterator[BenchBoard]:
-    """Open the board at `url` (serial device, `sim://...`) as a BenchBoard, with an optional
-    SCPI ammeter on its own serial URL for the battery current; motors stopped on exit."""
-    from omnibench.bench.link_adapter import LinkBoard
-
-    with LinkBoard.open(url, timeout=timeout, ammeter=ammeter) as board:
-        yield board

@@ -1,14 +1,14 @@
 """The campaign: every procedure in turn, then fit, validate-energy and diagnose, one report.
 
-The analysis stages belong to omnibench.analysis (written separately). The campaign calls
-their commands (`omnibench fit`, `validate-energy`, `diagnose`) only when they are installed,
-and says in the report which stages ran, which were skipped and why.
+The analysis stages are run by the caller's `analyse` function (the command line runs the
+installed commands `omnibench fit`, `validate-energy`, `diagnose`; see omnibench.cli.stages), so
+this module never imports the command line; the report says which stages ran, which were
+skipped and why.
 """
 
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import math
 import time
@@ -27,6 +27,8 @@ COMMAND_OF = {
     "energy_trajectories": "energy",
 }
 ANALYSIS = ("fit", "validate-energy", "diagnose")
+#: runs the analysis stages: (runs_dir, out, robot_file, echo, stages) -> results by stage name
+Analyse = Callable[[Path, Path, "Path | None", Callable[[str], None], tuple[str, ...]], dict[str, Any]]
 
 
 def procedure_files(folder: Path | None) -> dict[str, Path]:
@@ -58,12 +60,17 @@ def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
                  echo: Callable[[str], None] = print, progress: bool = False,
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
-                 resume: bool = False) -> dict[str, Any]:
+                 resume: bool = False, without_current: bool = False,
+                 operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
+                 verbosity: int = 0) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
     an interrupted (or failed) run is resumed, a missing one is run. Without it, `out` must not
-    hold runs yet (the analysis reads every run there, so two campaigns must not mix)."""
+    hold runs yet (the analysis reads every run there, so two campaigns must not mix).
+
+    analyse(runs_dir, out, robot_file, echo, stages) runs the analysis stages and returns their
+    results by name (the command line passes omnibench.cli.stages.run_analysis); None skips them."""
     from omnibench.bench.procedure import load_plan
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
 
@@ -98,65 +105,33 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
         res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
                           progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
-                          resume=prior)
+                          resume=prior, without_current=without_current, operator=operator, plot=plot,
+                          verbosity=verbosity)
         results["procedures"][p] = res
-    results["analysis"] = run_analysis(runs_dir, out, robot_file, echo, stages)
+    if analyse is None:
+        results["analysis"] = {n: {"status": "skipped", "why": "no analysis runner given"} for n in ANALYSIS}
+    else:
+        results["analysis"] = analyse(runs_dir, out, robot_file, echo, stages)
     plots = make_plots(results, out, robot)
     results["plots"] = plots
     results["host_seconds"] = time.monotonic() - t0
     report = write_report(results, out, robot)
     results["report"] = str(report)
+    from omnibench.bench.html_report import write_html
+
+    results["report_html"] = str(write_html(report))
     from omnibench.runs.store import json_ready
 
     (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
                                        encoding="utf-8")
-    echo(f"report: {report}")
+    from omnibench.bench.summary import campaign_summary
+
+    for line in campaign_summary(results):
+        echo(line)
     return results
 
 
 # --------------------------------------------------------------------------- analysis stages
-def _analysis_command(name: str) -> Any | None:
-    """The click command for `name` if its module is installed, else None."""
-    import importlib
-    import importlib.util
-
-    from omnibench.cli import COMMANDS
-
-    module = COMMANDS[name][0]
-    try:
-        if importlib.util.find_spec(module) is None:
-            return None
-        mod = importlib.import_module(module)
-    except ImportError:
-        return None
-    return mod.commands[name] if hasattr(mod, "commands") else getattr(mod, "command", None)
-
-
-def _invoke(cmd: Any, name: str, args: list[str]) -> tuple[int, str, str]:
-    """Run a click command in process; (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    code = 0
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            cmd.main(args=args, prog_name=f"omnibench {name}", standalone_mode=False)
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        except UserError as exc:
-            code = exc.exit_code
-            err.write(f"omnibench: error: {exc}\n")
-        except Exception as exc:  # noqa: BLE001 - a failing later stage must not lose the campaign
-            code = 1
-            err.write(f"omnibench: internal error: {type(exc).__name__}: {exc}\n")
-    return code, out.getvalue(), err.getvalue()
-
-
-def _options(cmd: Any) -> set[str]:
-    names: set[str] = set()
-    for p in getattr(cmd, "params", []):
-        names.update(getattr(p, "opts", []))
-    return names
-
-
 def parse_stages(text: str) -> tuple[str, ...]:
     """'fit,validate-energy' -> ('fit', 'validate-energy'); 'none' -> (); UserError otherwise."""
     if text.strip().lower() in ("none", ""):
@@ -168,67 +143,19 @@ def parse_stages(text: str) -> tuple[str, ...]:
     return names
 
 
-def run_analysis(runs_dir: Path, out: Path, robot_file: Path | None, echo: Callable[[str], None],
-                 stages_wanted: tuple[str, ...] = ANALYSIS) -> dict[str, Any]:
-    """fit, validate-energy, diagnose on the campaign's runs, each only if installed.
-
-    fit writes OUT/model.toml; validate-energy and diagnose use it (or the robot file when
-    the fit did not run). Options are passed only if the installed command declares them.
-    """
-    from omnibench.model.robot import DEFAULT_ROBOT_FILE
-
-    stages: dict[str, Any] = {}
-    model_file = out / "model.toml"
-    model: Path = Path(robot_file) if robot_file else DEFAULT_ROBOT_FILE
-    for name in ANALYSIS:
-        if name not in stages_wanted:
-            stages[name] = {"status": "skipped", "why": "not asked for (--analysis)"}
-            echo(f"== {name}: skipped (not asked for)")
-            continue
-        cmd = _analysis_command(name)
-        if cmd is None:
-            stages[name] = {"status": "skipped", "why": f"`omnibench {name}` is not installed yet (omnibench.analysis)"}
-            echo(f"== {name}: skipped (not installed yet)")
-            continue
-        opts = _options(cmd)
-        args: list[str] = []
-        if name == "fit":
-            if "--out" in opts:
-                args += ["--out", str(model_file)]
-            if "--robot" in opts and robot_file is not None:
-                args += ["--robot", str(robot_file)]
-        else:
-            if "--model" in opts:
-                args += ["--model", str(model)]
-            if "--out" in opts:  # diagnose writes the extended model (a TOML file)
-                args += ["--out", str(out / f"model_{name.replace('-', '_')}.toml")]
-        if "--plots" in opts:
-            args += ["--plots", str(out / "plots" / name)]
-        if "--json" in opts:
-            args += ["--json"]
-        args.append(str(runs_dir))
-        echo(f"== {name}: omnibench {name} {' '.join(args)}")
-        code, so, se = _invoke(cmd, name, args)
-        stage: dict[str, Any] = {"status": "ok" if code == 0 else "failed", "exit_code": code,
-                                 "command": f"omnibench {name} {' '.join(args)}",
-                                 "stdout": so[-4000:], "stderr": se[-2000:]}
-        if "--json" in args:
-            with contextlib.suppress(json.JSONDecodeError):
-                stage["result"] = json.loads(so)
-        if name == "fit" and code == 0 and model_file.is_file():
-            model = model_file
-            stage["model"] = str(model_file)
-        stages[name] = stage
-        echo(f"   {stage['status']}" + (f": {se.strip().splitlines()[-1]}" if code and se.strip() else ""))
-    return stages
-
-
 def _fmt_num(v: Any) -> str:
     if isinstance(v, bool) or v is None:
         return str(v)
     if isinstance(v, (int, float)):
         return f"{v:.4g}"
     return str(v)
+
+
+def _pct(v: Any) -> str:
+    """A fraction (NRMSE, gain) as a percentage, '–' when missing."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        return f"{100 * v:.3g} %"
+    return "–"
 
 
 def diagnose_lines(res: dict[str, Any]) -> list[str]:
@@ -238,7 +165,7 @@ def diagnose_lines(res: dict[str, Any]) -> list[str]:
     before, after = res.get("before") or {}, res.get("after") or {}
     for proc in before:
         b, a = (before.get(proc) or {}).get("nrmse"), (after.get(proc) or {}).get("nrmse")
-        lines.append(f"| {proc} | {_fmt_num(b)} | {_fmt_num(a)} |")
+        lines.append(f"| {proc} | {_pct(b)} | {_pct(a)} |")
     lines.append("")
     if res["selected"]:
         lines += ["**Added**", ""]
@@ -248,7 +175,7 @@ def diagnose_lines(res: dict[str, Any]) -> list[str]:
             ev = sel.get("evidence") or {}
             lines.append(f"- `{sel['effect']}` ({sel.get('title', '')}): {params}; likelihood ratio "
                          f"{_fmt_num(ev.get('likelihood_ratio'))} for {ev.get('parameters_added')} parameter(s), "
-                         f"p = {_fmt_num(ev.get('p_value'))}, held-out gain {_fmt_num(ev.get('heldout_gain'))}")
+                         f"p = {_fmt_num(ev.get('p_value'))}, held-out weighted error lower by {_fmt_num(ev.get('heldout_gain'))}")
     else:
         lines.append("**Added**: nothing: no candidate effect earned its parameters on held-out runs.")
     lines.append("")
@@ -259,9 +186,13 @@ def diagnose_lines(res: dict[str, Any]) -> list[str]:
         lines.append(f"- unexplained structure in {un.get('group')} against {un.get('variable')} "
                      f"(p = {_fmt_num(un.get('p'))}): {un.get('where') or un.get('location')}")
     if res.get("rejected"):
-        lines += ["", "<details><summary>rejected candidates</summary>", ""]
-        lines += [f"- `{r.get('effect')}`: {r.get('reason')}" for r in res["rejected"]]
-        lines += ["", "</details>"]
+        lines += ["", "**Rejected candidates**, by round", ""]
+        rounds: dict[Any, list[dict[str, Any]]] = {}
+        for r in res["rejected"]:
+            rounds.setdefault(r.get("round"), []).append(r)
+        for rnd, rs in rounds.items():
+            lines.append(f"- round {rnd if rnd is not None else '?'}: "
+                         + "; ".join(f"`{r.get('effect')}` ({r.get('reason')})" for r in rs))
     for note in res.get("notes") or []:
         lines.append(f"- note: {note}")
     return lines
@@ -279,9 +210,15 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
                 lines.append(f"| {k} | {_fmt_num(v.get('value'))} | {_fmt_num(v.get('se'))} | "
                              f"[{_fmt_num(ci[0])}, {_fmt_num(ci[1])}] | {v.get('unit', '')} | {v.get('verdict', '')} |")
         lines.append("")
-        for key in ("rank", "n_parameters", "condition_number", "confounded", "error_by_procedure"):
+        for key in ("rank", "n_parameters", "condition_number"):
             if key in res:
-                lines.append(f"- {key.replace('_', ' ')}: {_fmt_num(res[key]) if not isinstance(res[key], (dict, list)) else res[key]}")
+                lines.append(f"- {key.replace('_', ' ')}: {_fmt_num(res[key])}")
+        for c in res.get("confounded") or []:
+            lines.append(f"- confounded: {c.get('combination')} is what the data see ({', '.join(c.get('with') or [])} "
+                         f"with {c.get('fixed')} held fixed)")
+        errs = res.get("error_by_procedure") or {}
+        if errs:
+            lines.append("- error by procedure (NRMSE): " + ", ".join(f"{k} {_pct(v)}" for k, v in errs.items()))
         for note in res.get("notes", []) or []:
             lines.append(f"- note: {note}")
     elif isinstance(res, dict) and isinstance(res.get("runs"), list) and name == "validate-energy":
@@ -295,9 +232,9 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
                          f"max {_fmt_num(res.get('max_abs_error_pct'))} %")
     elif isinstance(res, dict) and name == "diagnose" and "selected" in res:
         lines += diagnose_lines(res)
-    elif res is not None:
-        text = json.dumps(res, indent=2, default=str).splitlines()
-        lines += ["", "```json", *text[:60], *(["..."] if len(text) > 60 else []), "```"]
+    elif isinstance(res, dict):
+        lines += [""] + [f"- {k.replace('_', ' ')}: {_fmt_num(v)}" for k, v in res.items()
+                         if isinstance(v, (int, float, str, bool)) or v is None]
     else:
         body = (st.get("stdout") or "").strip()
         if body:
@@ -396,8 +333,10 @@ def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
     from omnibench.bench.session import LABELS, summary_lines
     from omnibench.runs import read_run
 
+    ports = sorted({str(read_run(r["run"]).metadata.get("port")) for r in results["procedures"].values()
+                    if r.get("run")}) or [results["port"]]
     lines = ["# omnibench campaign report", "",
-             f"- port: `{results['port']}`", f"- robot file: {results['robot_file']} ({robot.name})",
+             f"- port: {', '.join(f'`{x}`' for x in ports)}", f"- robot file: {results['robot_file']} ({robot.name})",
              f"- omnibench {results['tool_version']}",
              f"- host time: {results.get('host_seconds', math.nan):.0f} s", ""]
     first = next(iter(results["procedures"].values()), None)
@@ -410,7 +349,8 @@ def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
     for p, res in results["procedures"].items():
         run = read_run(res["run"])
         lines += [f"### {LABELS[p]}", "", f"- run: `{res['run']}` — {run.status}, {len(run.steps)} steps, "
-                  f"{len(run.samples)} samples", f"- procedure file: `{run.metadata.get('procedure_file')}`"]
+                  f"{len(run.samples)} samples", f"- port: `{run.metadata.get('port')}`",
+                  f"- procedure file: `{run.metadata.get('procedure_file')}`"]
         for line in summary_lines(p, {k: v for k, v in res.items()}, len(run.steps)):
             lines.append(f"- {line}")
         plot = results.get("plots", {}).get(COMMAND_OF[p])

@@ -1,8 +1,9 @@
 """Adapts the board client of omnibench.link (`Board`) to the runner's `BenchBoard` interface.
 
-The client already keeps the board's watchdog fed (it PINGs on board time while reading and
-on wall time otherwise), unwraps the board clock and detects a lost link or a board reset.
-This adapter only reshapes: one sample at a time, identity as a dict, pose as a tuple.
+The client unwraps the board clock, checks every frame's board time and detects a lost link
+or a board reset. It is opened without its own heartbeat: the runner feeds the watchdog from
+its loop (`keepalive`), so a hung runner lets the board stop the motors. This adapter only
+reshapes: one sample at a time, identity as a dict, pose as a tuple, command times.
 """
 
 from __future__ import annotations
@@ -13,14 +14,19 @@ from collections import deque
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from omnibench.bench.board import Telemetry
+from omnibench.bench.board import BenchBoard, Telemetry
+
+
+@contextlib.contextmanager
+def open_bench_board(url: str, timeout: float = 2.0, ammeter: str | None = None) -> Iterator[BenchBoard]:
+    """Open the board at `url` (serial device, `sim://...`) as a BenchBoard, with an optional
+    SCPI ammeter on its own serial URL for the battery current; motors stopped on exit."""
+    with LinkBoard.open(url, timeout=timeout, ammeter=ammeter) as board:
+        yield board
 
 
 class LinkBoard:
     """A `BenchBoard` over `omnibench.link.board.Board`."""
-
-    #: the link client sends its own heartbeat; the runner need not repeat commands
-    self_heartbeat = True
 
     def __init__(self, board: Any) -> None:
         self.board = board
@@ -41,7 +47,7 @@ class LinkBoard:
         `ammeter_period` s of board time); leaving the block stops the motors and closes both."""
         from omnibench.link.board import Board
 
-        with Board.open(url, timeout=timeout) as board:
+        with Board.open(url, timeout=timeout, heartbeat=False) as board:
             lb = cls(board)
             meter = None
             if ammeter:
@@ -71,25 +77,42 @@ class LinkBoard:
 
     def configure(self, *, telemetry_hz: float, watchdog_s: float) -> None:
         self._drain()
-        self.board.clear_faults()
         self.board.configure(telemetry_hz=int(round(telemetry_hz)), watchdog_s=watchdog_s)
+
+    def latched_faults(self, timeout: float = 2.0) -> int:
+        """Fault bits the board has latched now (from the next sample; telemetry must be on)."""
+        s = self.read(timeout)
+        self._buf.appendleft(s)
+        return int(s.faults)
+
+    def clear_faults(self) -> None:
+        """Clear latched faults (only with the operator's consent: the runner asks)."""
+        self._drain()
+        self.board.clear_faults()
 
     def reset_encoders(self) -> None:
         self._drain()
         self.board.reset_encoders()
 
-    def set_duties(self, duties: Sequence[float]) -> None:
+    def set_duties(self, duties: Sequence[float]) -> float:
         self._drain()
-        self.board.set_duties(duties)
+        return self.board.set_duties(duties)
 
-    def stop(self) -> None:
+    def stop(self) -> float | None:
         try:
             self._drain()
         finally:
-            self.board.stop()
+            t = self.board.stop()
+        return t
 
     def keepalive(self) -> None:
-        """Nothing to do: the link client PINGs on its own."""
+        """PING the board without waiting for the ACK (feeds its watchdog)."""
+        self.board.keepalive()
+
+    @property
+    def link_stats(self) -> dict[str, Any]:
+        """The link's counters (frames, lost, CRC errors, time faults, retries), JSON-ready."""
+        return self.board.stats.as_dict()
 
     def read(self, timeout: float) -> Telemetry:
         """The next sample (the client raises BoardError if the link is lost)."""

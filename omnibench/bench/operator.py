@@ -77,6 +77,11 @@ class Operator(Protocol):
         """After a run: a distance (m) or a displacement (forward m, left m)."""
         ...
 
+    def remeasure(self, step: Step, question: str) -> Any | None:
+        """The reading disagrees with the encoders (`question` says how): a new reading, or None
+        to keep the first."""
+        ...
+
 
 def parse_length(text: str, where: str) -> float:
     """'1.23', '1.23 m', '123 cm' -> metres; UserError naming `where` otherwise."""
@@ -100,41 +105,82 @@ def parse_displacement(value: Any, where: str) -> tuple[float, float]:
 
 
 class ConsoleOperator:
-    """A person at the keyboard."""
+    """A person at the keyboard.
+
+    Every prompt that leads to motion says what moves next (`describe_motion`, needs `robot`)
+    and needs an explicit yes; type-ahead is dropped. On a simulated board (`mirror`), what the
+    person confirms is also done to the simulated world, so its physics follows the prompts
+    (how a person tries the procedures against `omnibench sim serve`).
+    """
 
     source = "console"
+
+    def __init__(self, robot: Any = None, mirror: Any = None) -> None:
+        self.robot, self.mirror = robot, mirror
+        self._sim = SimulatedOperator(mirror, noise=0.0) if mirror is not None else None
+
+    def _next(self, step: Step | None) -> str:
+        from omnibench.bench.prompts import describe_motion
+
+        return describe_motion(step, self.robot) + "\n" if step is not None and self.robot is not None else ""
 
     def perform(self, action: Action, step: Step | None) -> str:
         import click
 
+        from omnibench.bench.prompts import ask_yes
+
         click.echo("", err=True)  # off the progress bar's line
-        click.confirm(f"{action.prompt}. Done?", default=True, abort=True, err=True)
+        ask_yes(f"{self._next(step)}{action.prompt}.")
+        if self._sim is not None:
+            self._sim.perform(action, step)
         return "done"
 
     def start_mark(self, step: Step) -> str:
         import click
 
+        from omnibench.bench.prompts import ask_yes
+
         click.echo("", err=True)
-        click.confirm("Put the robot at the start mark, facing along the marked axis. Done?",
-                      default=True, abort=True, err=True)
+        ask_yes(f"{self._next(step)}Put the robot at the start mark, facing along the marked axis.")
+        if self._sim is not None:
+            self._sim.start_mark(step)
         return "done"
 
     def measure(self, step: Step) -> Any:
-        import click
+        from omnibench.bench.prompts import _read
 
-        click.echo("", err=True)
         while True:
             if step.measure == "distance":
-                text = click.prompt("Distance travelled, start mark to robot (e.g. 1.23 m)", err=True)
+                text = _read("Distance travelled, start mark to robot (e.g. 1.23 m)")
             else:
-                text = click.prompt("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)",
-                                    err=True)
+                text = _read("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)")
             try:
-                if step.measure == "distance":
-                    return parse_length(text, "answer")
-                return parse_displacement(text, "answer")
+                return self._parse(step, text)
             except UserError as exc:
+                import click
+
                 click.echo(f"  {exc}; try again", err=True)
+
+    @staticmethod
+    def _parse(step: Step, text: str) -> Any:
+        if step.measure == "distance":
+            return parse_length(text, "answer")
+        return parse_displacement(text, "answer")
+
+    def remeasure(self, step: Step, question: str) -> Any | None:
+        """`question` (the tape disagrees with the encoders): a new reading, or None to keep."""
+        import click
+
+        from omnibench.bench.prompts import _read
+
+        while True:
+            text = _read(f"{question}: re-measure? Type the new reading, or keep")
+            if text.lower() == "keep":
+                return None
+            try:
+                return self._parse(step, text)
+            except UserError as exc:
+                click.echo(f"  {exc}; type a length, or keep", err=True)
 
 
 class AnswersOperator:
@@ -188,6 +234,10 @@ class AnswersOperator:
     def measure(self, step: Step) -> Any:
         return self._value(step)
 
+    def remeasure(self, step: Step, question: str) -> Any | None:
+        """A file cannot measure again: the reading is kept (and the question recorded)."""
+        return None
+
 
 class SimulatedOperator:
     """Acts through the simulated board's world messages and measures the true pose + noise.
@@ -206,6 +256,8 @@ class SimulatedOperator:
 
     def perform(self, action: Action, step: Step | None) -> str:
         w = action.world
+        if action.key == "clear_faults":
+            return "done"  # the simulated operator agrees (the answer is logged with its source)
         assert w is not None
         if action.key == "flip":
             self.board.sim_set_world(mode=w.mode)
@@ -219,6 +271,12 @@ class SimulatedOperator:
     def start_mark(self, step: Step) -> str:
         self._start = self.board.sim_truth()
         return "done"
+
+    def remeasure(self, step: Step, question: str) -> Any | None:
+        """Measure again (a fresh tape reading); answers from a file are kept."""
+        if self.measurer is not None:
+            return self.measurer.remeasure(step, question)
+        return self.measure(step)
 
     def measure(self, step: Step) -> Any:
         if self.measurer is not None:

@@ -28,6 +28,9 @@ from omnibench.errors import UserError
 from omnibench.files import read_text
 from omnibench.model.units import to_si
 
+MAX_STEP_S = 3600.0   #: longest time a procedure file may give (s)
+MAX_COUNT = 1000      #: largest whole number (repetitions) a procedure file may give
+
 PROCEDURES = ("upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories")
 
 #: The procedure file a command uses when --procedure is not given.
@@ -170,7 +173,10 @@ class ProcedureFile:
     def quantity(self, section: str | None, table: dict[str, Any], key: str, unit: str,
                  default: Any = None, *, lo: float = -math.inf, hi: float = math.inf,
                  lo_open: bool = False) -> float:
-        """A scalar in SI `unit` (strings may carry units); bounds checked."""
+        """A scalar in SI `unit` (strings may carry units); bounds checked. A time is at most
+        MAX_STEP_S unless `hi` says otherwise (no step of these procedures lasts an hour)."""
+        if unit == "s" and hi == math.inf:
+            hi = MAX_STEP_S
         if key not in table:
             if default is None:
                 self.fail(section, key, f"missing (a value in {unit})")
@@ -201,10 +207,10 @@ class ProcedureFile:
         return [self.convert(section, key, v, unit, **bounds) for v in raw]
 
     def integer(self, section: str | None, table: dict[str, Any], key: str, default: int,
-                lo: int = 0) -> int:
+                lo: int = 0, hi: int = MAX_COUNT) -> int:
         raw = table.get(key, default)
-        if isinstance(raw, bool) or not isinstance(raw, int) or raw < lo:
-            self.fail(section, key, f"expected a whole number >= {lo}, got {raw!r}")
+        if isinstance(raw, bool) or not isinstance(raw, int) or not lo <= raw <= hi:
+            self.fail(section, key, f"expected a whole number in {lo}..{hi}, got {raw!r}")
         return raw
 
     def boolean(self, section: str | None, table: dict[str, Any], key: str, default: bool) -> bool:
@@ -357,7 +363,7 @@ def expand_upside_down_sweep(pf: ProcedureFile, robot: Any) -> Plan:
         "noise_factor": pf.quantity("steady_state", ss, "noise_factor", "1", 2.0, lo=0, lo_open=True),
         "relative_tolerance": pf.quantity("steady_state", ss, "relative_tolerance", "1", 0.01, lo=0),
         "min_hold": pf.quantity("steady_state", ss, "min_hold", "s", 0.2, lo=0),
-        "max_hold": pf.quantity("steady_state", ss, "max_hold", "s", 5.0, lo=0, lo_open=True),
+        "max_hold": pf.quantity("steady_state", ss, "max_hold", "s", 5.0, lo=0, lo_open=True, hi=3600),
         "average": pf.quantity("steady_state", ss, "average", "s", 0.3, lo=0.02, lo_open=True),
     }
     if steady["max_hold"] < steady["min_hold"] + steady["window"]:

@@ -1,8 +1,16 @@
 """The runner: executes a plan's steps on a board, records everything, stops the motors on
 every exit path.
 
-Timing follows the board's clock (telemetry time stamps), never the host's wall clock, so a
-simulated board may run faster than real time. Between steps the runner asks the operator for
+Timing follows the board's clock (telemetry time stamps), so a simulated board may run faster
+than real time; the host's clock only bounds every phase (HOST_SLACK_S beyond its planned
+board time), so no frame with a wrong time can hold a duty longer than planned.
+
+A step's results come only from samples taken under its own command: the board time in each
+command's acknowledgement says when the board applied it, and a sample is used only if it is
+later than that and reports the duties commanded then (telemetry that queued up on the port
+while the host was busy is written to samples.csv but never counted for the step). The
+board's watchdog is fed from the runner's loop (`keepalive` every eighth of the watchdog of board or
+host time), never by a thread, so a hung runner lets the board stop the motors. Between steps the runner asks the operator for
 the physical actions the next step's world needs (flip, swap wheels, place a weight) and, for
 timed runs, for the start mark and the measurement after the run.
 
@@ -25,6 +33,7 @@ from __future__ import annotations
 import functools
 import math
 import signal
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,7 +44,12 @@ from omnibench.bench.operator import Action, actions_for
 from omnibench.bench.procedure import Plan, Step, World
 from omnibench.errors import BoardError
 
+#: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
+QUESTION_FACTOR = 3.0
+
 FAULT_NAMES = ("WATCHDOG", "OVERCURRENT", "UNDERVOLTAGE", "DRIVER", "ESTOP")
+DUTY_LSB = 1.0 / 32767      #: duty resolution on the wire: a reported duty within one LSB is the commanded one
+HOST_SLACK_S = 3.0          #: a phase ends when its board time is done, or this long (host clock) after
 
 
 def fault_names(flags: int) -> str:
@@ -119,6 +133,7 @@ class StepData:
     cur: list[tuple[float, ...] | None] = field(default_factory=list)
     V: list[float | None] = field(default_factory=list)
     I: list[float | None] = field(default_factory=list)
+    rejected: int = 0  #: samples read during the step but not taken under its command
 
     def arrays(self, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
         t = np.asarray(self.t, dtype=float)
@@ -135,20 +150,27 @@ class Runner:
 
     def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
                  progress: Callable[[float, str], None] | None = None,
-                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0) -> None:
+                 echo: Callable[[str], None] | None = None, read_timeout: float = 2.0,
+                 view: Any = None) -> None:
         self.plan, self.robot, self.board, self.writer, self.operator = plan, robot, board, writer, operator
         self._progress = progress or (lambda done, label: None)
         self._step_progress = 0.0
         self.echo = echo or (lambda line: None)
         self.read_timeout = read_timeout
+        #: the live view (omnibench.bench.live.LiveView): every sample, and a pause before prompts
+        self.view = view
         self.world: World | None = None
         self.cpr = float(getattr(board, "hello", {}).get("counts_per_rev") or robot.counts_per_rev)
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
-        self.keep_every = self.watchdog_s / 4.0
-        #: the board client feeds the watchdog itself (omnibench.link); else the runner repeats
-        #: the current duties (or a keepalive) every quarter watchdog of board time
-        self.self_heartbeat = bool(getattr(board, "self_heartbeat", False))
-        self._last_cmd_t = -math.inf
+        self.telemetry_hz = float(plan.settings.get("telemetry_hz", 100.0))
+        self._paused = False  # telemetry off while a person works (see _quiet)
+        #: keepalive period: 8 PINGs per watchdog timeout, so that on a cable losing 20 % of
+        #: the host's frames the watchdog still fires only when the runner stops (0.2^8 ~ 3e-6)
+        self.keep_every = self.watchdog_s / 8.0
+        self._fed_board = -math.inf   # board time of the last frame sent (command or keepalive)
+        self._fed_host = -math.inf    # host clock of the same
+        #: (board time applied, duties) of the commands in force, oldest first (None: no ack time)
+        self._applied: list[tuple[float | None, tuple[float, ...]]] = []
         self._duties = (0.0, 0.0, 0.0, 0.0)
         self.done_time = 0.0
         self.records: list[dict[str, Any]] = []
@@ -159,54 +181,106 @@ class Runner:
         self._progress(dt, label)
 
     # -- board helpers ----------------------------------------------------------------------
-    def _command(self, duties: Sequence[float], t_now: float | None = None) -> None:
+    def _applied_at(self, t: float | None, duties: tuple[float, ...]) -> None:
+        self._applied.append((t, duties))
+        del self._applied[:-8]  # older commands cannot matter for samples still to come
+        self._fed_host = time.monotonic()
+        if t is not None:
+            self._fed_board = t
+
+    def _command(self, duties: Sequence[float]) -> None:
         self._duties = tuple(float(u) for u in duties)
-        self.board.set_duties(self._duties)
-        if t_now is not None:
-            self._last_cmd_t = t_now
+        self._applied_at(self.board.set_duties(self._duties), self._duties)
 
     def _stop(self) -> None:
         self._duties = (0.0, 0.0, 0.0, 0.0)
-        self.board.stop()
+        self._applied_at(self.board.stop(), self._duties)
 
-    def _read(self, step: Step, data: StepData | None) -> Any:
+    def _feed_watchdog(self, t_board: float) -> None:
+        """Keepalive when an eighth of the watchdog timeout of board or host time passed since
+        the last frame sent: called only from the runner's loop, so the board stops the motors if it hangs."""
+        now = time.monotonic()
+        if t_board - self._fed_board >= self.keep_every or now - self._fed_host >= self.keep_every:
+            self.board.keepalive()
+            self._fed_board, self._fed_host = t_board, now
+
+    def _under_command(self, s: Any, t_from: float | None) -> bool:
+        """Was sample `s` taken under the runner's current commands? It must be later than
+        `t_from` (the phase's first command) and report the duties of the command in force
+        at its time (the latest one applied before it)."""
+        if t_from is not None and not s.t > t_from:
+            return False
+        in_force = None
+        for t_ack, duties in self._applied:
+            if t_ack is None or t_ack < s.t:
+                in_force = duties
+        if in_force is None:
+            return False
+        return all(abs(float(a) - b) <= 1.01 * DUTY_LSB for a, b in zip(s.duty, in_force))
+
+    def _read(self, step: Step, data: StepData, t_from: float | None = None) -> Any:
+        """Read and record the next sample; returns it if it was taken under the current
+        command (after `t_from`, with the commanded duties), else None. Samples not taken
+        under the step's command are written to samples.csv with no step."""
         s = self.board.read(self.read_timeout)
+        ok = self._under_command(s, t_from)
         mc = s.motor_current if getattr(self.board, "has_motor_current", True) else None
         ib = s.battery_current if getattr(self.board, "has_battery_current", True) else None
-        row = {"step": step.index, "t": s.t, "seq": s.seq, "faults": s.faults,
+        row = {"step": step.index if ok else None, "t": s.t, "seq": s.seq, "faults": s.faults,
                **{f"u{j + 1}": s.duty[j] for j in range(4)},
                **{f"enc{j + 1}": s.encoder[j] for j in range(4)},
                "V_batt": s.battery_voltage, "I_batt": ib}
         if mc is not None:
             row.update({f"i{j + 1}": mc[j] for j in range(4)})
         self.writer.sample(row)
-        if data is not None:
-            data.t.append(s.t)
-            data.enc.append(tuple(s.encoder))
-            data.cur.append(tuple(mc) if mc is not None else None)
-            data.V.append(s.battery_voltage)
-            data.I.append(ib)
+        if self.view is not None:
+            self.view.sample(step, s)
         if s.faults:
             self.writer.event("fault", t=s.t, step=step.index, flags=int(s.faults), names=fault_names(int(s.faults)))
             self._stop()
             raise BoardError(f"board reported fault {fault_names(int(s.faults))} during step {step.index} "
                              f"({step.label})")  # the session then confirms the motors stopped
-        if (not self.self_heartbeat and self._duties != (0.0, 0.0, 0.0, 0.0)
-                and s.t - self._last_cmd_t >= self.keep_every):
-            self._command(self._duties, s.t)  # keep the watchdog fed with the same duties
+        self._feed_watchdog(s.t)
+        if not ok:
+            data.rejected += 1
+            return None
+        data.t.append(s.t)
+        data.enc.append(tuple(s.encoder))
+        data.cur.append(tuple(mc) if mc is not None else None)
+        data.V.append(s.battery_voltage)
+        data.I.append(ib)
         return s
+
+    def _next(self, step: Step, data: StepData, t_from: float | None, host_end: float) -> Any:
+        """The next sample under the current command (None once `host_end` has passed)."""
+        while time.monotonic() <= host_end:
+            s = self._read(step, data, t_from)
+            if s is not None:
+                return s
+        return None
 
     def _run_for(self, step: Step, data: StepData, duration: float,
                  schedule: list[tuple[float, tuple[float, ...]]] | None,
-                 until: Callable[[float], bool] | None = None) -> tuple[float, float]:
-        """Apply `schedule` (None: motors off) for `duration` board seconds; returns (t0, t_end)."""
+                 until: Callable[[float], bool] | None = None,
+                 accept_from: float | None = None) -> tuple[float, float]:
+        """Apply `schedule` (None: motors off, as the caller left them) for `duration` board
+        seconds; returns (t0, t_end): board time the phase's command was applied, last sample.
+
+        Only samples taken under the step's commands (after `accept_from`, default: this
+        phase's command) are added to `data` and count time. The phase also ends
+        `HOST_SLACK_S` after its duration on the host's clock. After an operator pause the
+        link is re-synchronised first."""
+        self._resync()
         if schedule:
             self._command(schedule[0][1])
+        t_cmd = self._applied[-1][0] if self._applied else None
+        t_from = t_cmd if accept_from is None else accept_from
+        host_end = time.monotonic() + duration + HOST_SLACK_S
         k = 0
-        s = self._read(step, data)
-        t0 = s.t
-        if schedule:
-            self._last_cmd_t = t0
+        s = self._next(step, data, t_from, host_end)
+        if s is None:
+            return self._host_limit(step, t_cmd, t_cmd)
+        t0 = t_cmd if t_cmd is not None else s.t
         last_progress = t0
         while True:
             rel = s.t - t0
@@ -215,29 +289,76 @@ class Runner:
             if schedule:
                 while k + 1 < len(schedule) and rel >= schedule[k + 1][0]:
                     k += 1
-                    self._command(schedule[k][1], s.t)
-            elif not self.self_heartbeat and s.t - self._last_cmd_t >= self.keep_every:
-                self.board.keepalive()
-                self._last_cmd_t = s.t
+                    self._command(schedule[k][1])
             if s.t - last_progress >= 0.2:
                 self.progress(s.t - last_progress, step.label)
                 last_progress = s.t
-            s = self._read(step, data)
+            nxt = self._next(step, data, t_from, host_end)
+            if nxt is None:
+                self._host_limit(step, t0, s.t)
+                break
+            s = nxt
         self.progress(s.t - last_progress, step.label)
         return t0, s.t
 
-    # -- the operator -------------------------------------------------------------------------
-    def _ask(self, action: Action, step: Step) -> None:
+    def _host_limit(self, step: Step, t0: float | None, t_end: float | None) -> tuple[float, float]:
+        """The phase overran its time on the host's clock: stop the motors, say so."""
         self._stop()
+        self.writer.event("host_time_limit", step=step.index, t=t_end,
+                          why=f"phase not done after its duration + {HOST_SLACK_S:g} s of host time")
+        if t0 is None or t_end is None:
+            raise BoardError(f"no telemetry under step {step.index}'s command ({step.label}) within its time "
+                             "limit on the host clock")
+        return t0, t_end
+
+    # -- the operator -------------------------------------------------------------------------
+    def _quiet(self, why: str) -> None:
+        """Before a person works: motors stopped and telemetry off, so the board sends nothing
+        and its watchdog (armed only while a duty is non-zero) has nothing to guard, however
+        long the pause. Idempotent: consecutive prompts share one quiet period."""
+        self._stop()
+        if self.view is not None:
+            self.view.pause()
+        if self._paused:
+            return
+        self.board.configure(telemetry_hz=0, watchdog_s=self.watchdog_s)
+        self._paused = True
+        self.writer.event("pause", why=why)
+
+    def _resync(self) -> None:
+        """After a pause: telemetry back on, anything left on the line dropped, and a first
+        fresh sample read so the board clock (which ran on during the pause) is current."""
+        if not self._paused:
+            return
+        self.board.configure(telemetry_hz=self.telemetry_hz, watchdog_s=self.watchdog_s)
+        n = self.board.discard_pending()
+        self._paused = False
+        self.writer.event("resync", discarded=int(n))
+
+    def _ask(self, action: Action, step: Step) -> None:
+        self._quiet(f"operator: {action.key}")
         self.echo(f"operator: {action.prompt}")
         answer = self.operator.perform(action, step)
         self.writer.operator_answer(step.index, action.key, action.prompt, answer, self.operator.source)
-        self._after_operator()
 
-    def _after_operator(self) -> None:
-        n = self.board.discard_pending()
-        if n:
-            self.writer.event("discarded", samples=int(n), why="telemetry queued while the operator worked")
+    def _clear_faults_with_consent(self) -> None:
+        """A fault latched before the run (e.g. the watchdog of an interrupted run) is shown
+        to the operator and cleared only if they agree; both are logged. Declining aborts."""
+        if not hasattr(self.board, "latched_faults"):
+            return
+        flags = int(self.board.latched_faults())
+        if not flags:
+            return
+        names = fault_names(flags)
+        self.writer.event("faults_latched", flags=flags, names=names)
+        action = Action("clear_faults", f"The board has fault {names} latched (motors stopped). Find and fix "
+                        "its cause, then clear it")
+        self._quiet("operator: clear_faults")
+        self.echo(f"operator: {action.prompt}")
+        answer = self.operator.perform(action, None)
+        self.writer.operator_answer(None, action.key, action.prompt, answer, self.operator.source)
+        self.board.clear_faults()
+        self.writer.event("faults_cleared", flags=flags, names=names, by=self.operator.source)
 
     def _setup_world(self, step: Step) -> None:
         for action in actions_for(self.world, step.world):
@@ -252,9 +373,10 @@ class Runner:
     # -- steps ---------------------------------------------------------------------------------
     def run(self, steps: Sequence[Step]) -> list[dict[str, Any]]:
         """Run `steps` in order; each completed step is written at once (resume-safe)."""
-        self.board.configure(telemetry_hz=self.plan.settings.get("telemetry_hz", 100.0),
-                             watchdog_s=self.watchdog_s)
+        _t_crit(0.95, 10)  # import scipy.stats now: importing it mid-step stalls the loop (~1 s)
+        self.board.configure(telemetry_hz=self.telemetry_hz, watchdog_s=self.watchdog_s)
         self._stop()
+        self._clear_faults_with_consent()
         self.board.reset_encoders()
         self.writer.event("encoders_reset")
         for step in steps:
@@ -310,12 +432,13 @@ class Runner:
         sel = t >= t[-1] - ss["average"]
         w = angle_slope(t[sel], phi[sel]) if sel.sum() >= 3 else np.full(4, np.nan)
         dts = np.diff(t[sel])
-        wk = np.diff(phi[sel], axis=0) / dts[:, None] if len(dts) else np.full((1, 4), np.nan)
+        later = dts > 0  # two samples with one board time (a repeated frame) give no speed
+        wk = np.diff(phi[sel], axis=0)[later] / dts[later, None] if later.any() else np.full((1, 4), np.nan)
         v = verdict[0]
         rec: dict[str, Any] = {
             "steady": bool(v.steady) if v is not None else False,
             "hold_time": t_end - t0, "t_rest": t_rest, "t_hold": t0, "t_start": t_rest if t_rest is not None else t0,
-            "t_end": t_end,
+            "t_end": t_end, "samples_used": len(hold.t), "samples_rejected": data.rejected + hold.rejected,
             **{f"w{j + 1}": float(w[j]) for j in range(4)},
             **{f"w_std{j + 1}": float(np.std(wk[:, j], ddof=1)) if len(wk) > 1 else None for j in range(4)},
         }
@@ -340,30 +463,66 @@ class Runner:
     def _drive_from_start_mark(self, step: Step) -> tuple["StepData", float, float, float]:
         """Operator puts the robot at the start mark; drive the step's schedule, stop, let it
         settle. Returns the samples and board times (start, end of drive, end of settle), s."""
-        self._stop()
+        self._quiet("operator: start mark")
         answer = self.operator.start_mark(step)
         self.writer.operator_answer(step.index, "place", "Put the robot at the start mark", answer,
                                     self.operator.source)
-        self._after_operator()
         data = StepData()
         t0, t_drive_end = self._run_for(step, data, step.duration, step.schedule)
         self._stop()
-        _, t_end = self._run_for(step, data, step.settle, None)
+        _, t_end = self._run_for(step, data, step.settle, None, accept_from=t0)
         return data, t0, t_drive_end, t_end
 
     def _timed(self, step: Step) -> dict[str, Any]:
         data, t0, t_drive_end, t_end = self._drive_from_start_mark(step)
         t, phi = data.arrays(self.cpr)
         dphi = phi[-1] - phi[0]
-        measured = self.operator.measure(step)
+        self._quiet("operator: measure")
+        measured, questioned = self._measure(step, dphi)
+        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end, "samples_rejected": data.rejected,
+                **self.slip_check(dphi, measured, step), "tape_questioned": questioned,
+                **self._electrical(data)}
+
+    def _measure(self, step: Step, dphi: np.ndarray) -> tuple[Any, bool]:
+        """The operator's reading, questioned at once while it is far from what the encoders
+        measured (see `tape_question`); returns (reading, whether it was questioned and kept)."""
         prompt = ("distance travelled (m)" if step.measure == "distance"
                   else "displacement forward, left (m)")
-        self.writer.operator_answer(step.index, step.measure or "measure", prompt,
-                                    list(measured) if isinstance(measured, tuple) else measured,
-                                    self.operator.source)
-        self._after_operator()
-        return {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
-                **self.slip_check(dphi, measured, step), **self._electrical(data)}
+        measured = self.operator.measure(step)
+        for _ in range(5):
+            self.writer.operator_answer(step.index, step.measure or "measure", prompt,
+                                        list(measured) if isinstance(measured, tuple) else measured,
+                                        self.operator.source)
+            question = self.tape_question(dphi, measured, step)
+            if question is None:
+                return measured, False
+            self.writer.event("tape_questioned", step=step.index, question=question)
+            self.echo(question)
+            again = self.operator.remeasure(step, question)
+            if again is None:
+                self.writer.event("tape_kept", step=step.index, question=question)
+                return measured, True
+            measured = again
+        return measured, True
+
+    def tape_question(self, dphi: np.ndarray, measured: Any, step: Step) -> str | None:
+        """A question for the operator when the tape reading is beyond QUESTION_FACTOR times the
+        no-slip tolerance from the encoders' no-slip displacement (a misread tape, a wrong run),
+        else None. Smaller differences are slip, reported by the no-slip check."""
+        chk = self.slip_check(dphi, measured, step)
+        tol = self.plan.settings["no_slip"]
+        if step.measure == "distance":
+            enc, m = abs(chk["encoder_distance"]), float(measured)
+            gap, size = abs(m - enc), max(abs(m), enc)
+            said = f"encoders say {enc:.2f} m, you typed {m:.2f} m"
+        else:
+            ef, el = chk["kin_forward"], chk["kin_left"]
+            mf, ml = (float(v) for v in measured)
+            gap, size = math.hypot(mf - ef, ml - el), max(math.hypot(mf, ml), math.hypot(ef, el))
+            said = (f"encoders say {ef:.2f} m forward, {el:.2f} m left; you typed {mf:.2f} m forward, "
+                    f"{ml:.2f} m left")
+        allowed = QUESTION_FACTOR * (tol["tolerance"] + tol["relative_tolerance"] * size)
+        return said if gap > allowed else None
 
     def slip_check(self, dphi: np.ndarray, measured: Any, step: Step) -> dict[str, Any]:
         """Compare the encoders' rolling distance with the operator's measurement."""
@@ -402,7 +561,7 @@ class Runner:
         # an external ammeter reads less often than the telemetry: integrate over its readings
         has_current = bool(ok.sum() >= 2)
         rec: dict[str, Any] = {"t_start": t0, "t_drive_end": t_drive_end, "t_end": t_end,
-                               "has_current": has_current, "current_samples": int(ok.sum())}
+                               "samples_rejected": data.rejected, "has_current": has_current, "current_samples": int(ok.sum())}
         if has_current:
             tt, P, II = t[ok], V[ok] * I[ok], I[ok]
             rec.update(energy=float(np.trapezoid(P, tt)), charge=float(np.trapezoid(II, tt)),

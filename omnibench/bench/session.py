@@ -8,9 +8,12 @@ checked before the port is opened, so a bad input never moves a motor.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -127,6 +130,45 @@ def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
     return []
 
 
+#: errors of the output file system: reported in one line naming the file, run left resumable
+DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EIO}
+RESERVE_NAME = "run.json.reserve"
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the run directory (nothing is written): a second process
+    writing the same run (two `--resume` at once) is refused, naming the first."""
+    from omnibench import locks
+
+    try:
+        fd = locks.lock_directory(run_dir)
+    except locks.Locked as exc:
+        raise UserError(f"{run_dir}: this run is being written by {exc.holder}; wait for it to end "
+                        "(one process per run)") from None
+    try:
+        yield
+    finally:
+        os.close(fd)
+
+
+def reserve_space(run_dir: Path, nbytes: int) -> Path:
+    """Claim `nbytes` on the run's file system before the robot moves (a file of zeros), so
+    that on a full disk run.json can still be marked (the reserve is freed first)."""
+    path = run_dir / RESERVE_NAME
+    with open(path, "wb") as fh:
+        fh.write(b"\0" * nbytes)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return path
+
+
+def disk_error_line(exc: OSError, run_dir: Path) -> str:
+    """'cannot write FILE: No space left on device' (the file named)."""
+    name = exc.filename or (run_dir / "samples.csv")
+    return f"cannot write {name}: {exc.strerror or exc}"
+
+
 def run_command(
     procedure: str,
     *,
@@ -142,11 +184,20 @@ def run_command(
     measurement_noise: float | None = None,
     timeout: float = 2.0,
     ammeter: str | None = None,
+    operator: str = "auto",
+    without_current: bool = False,
+    wiring: str | Path | None = None,
+    plot: bool = False,
+    verbosity: int = 0,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
     Raises UserError for bad input before any motor moves; KeyboardInterrupt propagates after
     the motors are stopped and the run is marked aborted.
+
+    operator: "auto" (the simulated operator on a simulator, the answers file, else the person at
+    the keyboard), "person" (always the keyboard; on a simulator the world follows the answers)
+    or "simulated". without_current: let `energy` drive without any battery current source.
     """
     from omnibench.bench.operator import AnswersOperator
 
@@ -170,6 +221,17 @@ def run_command(
         robot, robot_text, robot_name = load_robot_file(robot_file)
         pfile = Path(procedure_file) if procedure_file else default_procedure_path(procedure)
         plan = load_plan(pfile, robot, expect=procedure)
+        out_path = Path(out)
+        if out_path.exists() and not out_path.is_dir():
+            raise UserError(f"--out {out_path}: exists and is not a directory (runs are written into a directory)")
+        if (out_path / "run.json").is_file():
+            raise UserError(f"--out {out_path}: is a run directory; give the folder that should hold the new run, "
+                            "or --resume it")
+    if operator not in OPERATORS:
+        raise UserError(f"--operator {operator!r}: choose {', '.join(OPERATORS)}")
+    from omnibench.bench.wiring import wiring_for
+
+    wired, wiring_file = wiring_for(wiring)
     answer_op = AnswersOperator(answers) if answers else None
     if answer_op is not None:
         answer_op.check(plan.steps)
@@ -181,31 +243,95 @@ def run_command(
     if not port:
         raise UserError("no --port given (a serial device such as /dev/ttyACM0, or sim:// for the simulated robot)")
 
-    # 2. the board
-    from omnibench.bench.board import open_bench_board
+    # 2. the board (a resumed run is locked first: a second --resume is refused before any port)
+    from omnibench.bench.link_adapter import open_bench_board
 
-    with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
+    if port.startswith("sim:"):
+        _prepare_kernel(echo if progress and verbosity >= 0 else None)
+
+    with (run_lock(Path(resume)) if resume is not None else contextlib.nullcontext()), \
+            open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
+        if wired is not None:
+            from omnibench.bench.wiring import WiredBoard
+
+            board = WiredBoard(board, wired)
+            echo(f"wiring from {wiring_file}: {wired.describe()}")
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
-                             measurement_noise=measurement_noise)
+                             measurement_noise=measurement_noise, who=operator,
+                             without_current=without_current, plot=plot, verbosity=verbosity)
 
 
-def _choose_operator(board: Any, plan: Plan, answer_op: Any, measurement_noise: float | None) -> Any:
+OPERATORS = ("auto", "person", "simulated")
+
+
+def _prepare_kernel(echo: Callable[[str], None] | None) -> None:
+    """Load the simulator's physics kernel now, with a spinner: the first time on a machine (or
+    after a code change) it compiles for about 35 s of CPU, which used to look like a hang."""
+    import time
+
+    from omnibench.model.kernel import load_kernel
+
+    if echo is None:
+        load_kernel()
+        return
+    from rich.console import Console
+
+    t0 = time.monotonic()
+    with Console(stderr=True).status("preparing the simulated robot's physics kernel "
+                                     "(compiled once per machine and code version: about 35 s the first time)"):
+        load_kernel()
+    if time.monotonic() - t0 > 2.0:
+        echo(f"physics kernel ready ({time.monotonic() - t0:.0f} s)")
+
+
+class RunLog:
+    """log.txt in the run folder: what the terminal said, with UTC times (also under -q)."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / "log.txt"
+
+    def __call__(self, line: str) -> None:
+        import datetime as dt
+
+        try:
+            with open(self.path, "a", encoding="utf-8") as fh:
+                fh.write(f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%dT%H:%M:%S.%fZ} {line}\n")
+        except OSError:
+            pass
+
+
+def _wiring_record(board: Any) -> dict[str, Any] | None:
+    """The wiring the run used (None: straight, no wiring file)."""
+    from dataclasses import asdict
+
+    w = getattr(board, "wiring", None)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(w).items()} if w is not None else None
+
+
+def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measurement_noise: float | None,
+                     who: str = "auto") -> Any:
     from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
 
-    if getattr(board, "is_simulator", False):
+    sim = getattr(board, "is_simulator", False)
+    if who == "person":
+        return ConsoleOperator(robot, mirror=board if sim else None)
+    if who == "simulated" and not sim:
+        raise UserError("--operator simulated needs a simulated board (sim:// or omnibench sim serve)")
+    if sim:
         op = plan.settings.get("operator", {})
         noise = op.get("measurement_noise", 0.002) if measurement_noise is None else measurement_noise
         return SimulatedOperator(board, noise=noise, seed=op.get("seed", 1), measurer=answer_op)
     if answer_op is not None:
         return answer_op
-    return ConsoleOperator()
+    return ConsoleOperator(robot)
 
 
 def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot_name: str, board: Any, *,
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
-                  measurement_noise: float | None) -> dict[str, Any]:
+                  measurement_noise: float | None, who: str = "auto",
+                  without_current: bool = False, plot: bool = False, verbosity: int = 0) -> dict[str, Any]:
     import click
 
     from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
@@ -214,54 +340,70 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
 
     hello = dict(getattr(board, "hello", {}) or {})
     cpr = hello.get("counts_per_rev") or robot.counts_per_rev
-    if plan.procedure == "energy_trajectories" and plan.settings.get("ammeter_required") \
-            and not getattr(board, "has_battery_current", False):
-        raise UserError(f"{plan.path}: [ammeter] required = true, but the board reports no battery current sensor")
+    if plan.procedure == "energy_trajectories" and not getattr(board, "has_battery_current", False):
+        if plan.settings.get("ammeter_required"):
+            raise UserError(f"{plan.path}: [ammeter] required = true, but the board on {port} reports no "
+                            "battery current sensor and no --ammeter was given")
+        if not without_current:
+            raise UserError(f"energy needs the battery current, but the board on {port} reports no battery "
+                            "current sensor and no --ammeter was given: give --ammeter URL, or --without-current "
+                            "to drive the trajectories anyway (no energy is measured)")
+    operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     if resume is not None:
+        (Path(resume) / RESERVE_NAME).unlink(missing_ok=True)  # left by a killed run
         writer = RunWriter.resume(Path(resume), board=hello)
         done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
         todo = [s for s in plan.steps if s.index not in done]
         echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
     else:
-        writer = RunWriter.create(
-            Path(out), procedure, procedure_text=plan.text, procedure_file=str(plan.path),
-            robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
-            port=port, counts_per_rev=cpr,
-            extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
-                   "settings": plan.settings},
-        )
+        try:
+            writer = RunWriter.create(
+                Path(out), procedure, procedure_text=plan.text, procedure_file=str(plan.path),
+                robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
+                port=port, counts_per_rev=cpr,
+                extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
+                       "settings": plan.settings, "wiring": _wiring_record(board)},
+            )
+        except OSError as exc:
+            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
-    bar_ctx: Any = None
+    disk_full = False
+    reserve: Path | None = None
+    lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
+    lock.__enter__()
+    log = RunLog(writer.path)
+    log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
-        operator = _choose_operator(board, plan, answer_op, measurement_noise)
+        meta_size = len(json.dumps(writer.metadata, default=str))
+        reserve = reserve_space(writer.path, max(256 * 1024, 8 * meta_size))  # before the robot moves
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
-        if progress and todo:
-            bar_ctx = click.progressbar(length=max(int(total * 10), 1), label=LABELS[procedure], file=None,
-                                        show_eta=True, show_percent=True)
-        done_ds = [0.0]
+        view = None
+        if progress and todo and verbosity >= 0:
+            from omnibench.bench.live import LiveView, display_available
 
-        def advance(dt: float, label: str) -> None:
-            if bar_ctx is not None:
-                done_ds[0] += dt * 10
-                step = int(done_ds[0])
-                if step:
-                    bar_ctx.update(step)
-                    done_ds[0] -= step
+            if plot and not display_available():
+                echo("--plot: no display here (DISPLAY/WAYLAND_DISPLAY unset): terminal view only")
+            view = LiveView(LABELS[procedure], total, len(plan.steps), cpr, plot=plot and display_available())
+        elif plot:
+            echo("--plot needs the live view (a terminal, without -q/--json)")
 
-        runner = Runner(plan, robot, board, writer, operator, progress=advance,
-                        echo=(lambda line: None) if bar_ctx is not None else echo)
-        if bar_ctx is not None:
-            bar_ctx.__enter__()
+        def runner_echo(line: str) -> None:
+            log(line)
+            if view is None or verbosity > 0:
+                echo(line)
+
+        runner = Runner(plan, robot, board, writer, operator,
+                        progress=view.advance if view is not None else None, echo=runner_echo, view=view)
         try:
             runner.run(todo)
         finally:
-            if bar_ctx is not None:
-                bar_ctx.render_finish()
+            if view is not None:
+                view.close()
         status, reason = "complete", None
     except KeyboardInterrupt:
         status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
@@ -272,21 +414,39 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     except UserError as exc:
         status, reason = "failed", str(exc)
         raise
+    except OSError as exc:
+        if exc.errno not in DISK_ERRNOS:
+            status, reason = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
+            raise
+        status, reason, disk_full = "failed", disk_error_line(exc, writer.path), True
+        raise UserError(reason) from None
     except Exception as exc:
         status, reason = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
         raise
     finally:
         stopped = safe_stop(board)
+        if reserve is not None:
+            reserve.unlink(missing_ok=True)  # frees the space run.json needs, even on a full disk
         try:
             writer.event("motors_stopped", confirmed=stopped)
+            if getattr(board, "link_stats", None) is not None:
+                writer.update(link=board.link_stats)  # retries, lost frames, CRC and time faults
         except Exception:  # noqa: BLE001
             pass
-        writer.finish(status, reason)
+        try:
+            writer.finish(status, reason)
+        except OSError as exc:  # never hide the first error; say what could not be marked
+            click.echo(f"omnibench: also {disk_error_line(exc, writer.path)} (run.json may still say running)",
+                       err=True)
+        log(f"run {status}" + (f": {reason}" if reason else "") + f"; motors {'stopped' if stopped else 'NOT confirmed stopped'}")
         restore()
+        lock.__exit__(None, None, None)
         if status != "complete":
+            resumable = status == "aborted" or disk_full
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
-                 f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
-                                                   if status == "aborted" else ""), err=True)
+                       f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
+                                                        + (" once there is space" if disk_full else "")
+                                                        if resumable else ""), err=True)
     return completed_run_summary(procedure, writer.path, echo)
 
 

@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ports": ("omnibench.cli.ports", "List serial ports."),
     "board": ("omnibench.cli.board", "Talk to a motor board: info, monitor."),
     "sim": ("omnibench.cli.sim", "Run the simulated Omnibot board (pseudo-terminal)."),
+    "commission": ("omnibench.cli.commission", "Jog each wheel, check wiring and sensors: write wiring.toml."),
     "sweep": ("omnibench.cli.procedures", "III.i  upside-down voltage sweep."),
     "forward": ("omnibench.cli.procedures", "III.ii forward/backward runs (rolling resistance)."),
     "lateral": ("omnibench.cli.procedures", "III.iii lateral runs with payloads (roller friction)."),
@@ -32,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "validate-energy": ("omnibench.cli.analysis", "Predicted vs measured battery energy per run."),
     "predict": ("omnibench.cli.analysis", "Model prediction of a logged run vs measurement."),
     "diagnose": ("omnibench.cli.diagnose", "Find the missing effect, add it, report before/after."),
+    "plan": ("omnibench.cli.plan", "Plan the next steps that reach target SEs at least cost."),
 }
 
 
@@ -62,11 +64,22 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="omnibench")
-def cli() -> None:
+@click.option("-v", "--verbose", count=True, help="Say more (every operator action and check, even under the live view).")
+@click.option("-q", "--quiet", is_flag=True, help="Say only errors and results (no live view).")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     """omnibench: drive the Omnibot, measure its friction, fit, validate, diagnose.
 
     Every procedure also runs on the simulated robot: use --port sim://.
     """
+    ctx.obj = {"verbosity": -1 if quiet else verbose}
+
+
+def verbosity() -> int:
+    """-1 with -q, 0 by default, 1+ with -v (for the command running now)."""
+    ctx = click.get_current_context(silent=True)
+    obj = ctx.find_root().obj if ctx is not None else None
+    return int((obj or {}).get("verbosity", 0))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from omnibench.errors import UserError
+from omnibench.runs.check import check_output, checked_runs
 
 
 def _robot(path: Path | None):
@@ -63,9 +64,11 @@ def _free(text: str | None) -> list[str] | None:
               help="Also fit the upside-down sweep of each wheel on its own (a, b, c per wheel).")
 @click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
               help="Folder for the figures (sweep with fitted curves, residuals).")
+@click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None,
-                procedures: str | None, per_wheel: bool, plots: Path | None, as_json: bool) -> None:
+                procedures: str | None, per_wheel: bool, plots: Path | None, as_json: bool,
+                skip_bad: bool = False) -> None:
     """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
     correlations and an identifiability verdict per parameter; write the model file."""
     from omnibench.analysis.fitting import fit, fit_per_wheel
@@ -75,7 +78,9 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
     from omnibench.analysis.observations import PROCEDURES
 
     robot, _ = _robot(robot_file)
-    obs = Observations.from_runs(runs, robot)
+    good = checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True))
+    check_output(out, good)
+    obs = Observations.from_runs(good, robot)
     procs = None
     if procedures is not None:
         procs = [p.strip() for p in procedures.split(",") if p.strip()]
@@ -151,15 +156,18 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
               help="Model file from `omnibench fit` (or a robot file).")
 @click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
               help="Folder for the current-trace figure.")
+@click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool) -> None:
+def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool,
+                     skip_bad: bool = False) -> None:
     """Replay each energy run's duties through the model and compare predicted with measured
     battery energy (paper IV)."""
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.validate import validate_energy
 
     robot, _ = _robot(model)
-    obs = Observations.from_runs(runs, robot)
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
+                                 robot)
     val = validate_energy(robot, obs)
     fig = None
     if plots is not None:
@@ -187,15 +195,23 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
               help="Model file from `omnibench fit` (or a robot file).")
 @click.option("--plots", "plots", type=click.Path(path_type=Path), default=None,
               help="Folder for the measured-vs-model figures.")
+@click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
+@click.option("--baseline", is_flag=True,
+              help="Also leave-one-run-out: refit the model (a, b on the sweep; I_w and its effects on the "
+                   "traces) and the per-wheel black boxes (first-order lag + Coulomb offset, with and "
+                   "without dead time) on the other runs, and print each run's held-out NRMSE side by side.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool) -> None:
+def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, baseline: bool, as_json: bool,
+                    skip_bad: bool = False) -> None:
     """Replay a logged RUN (any procedure, including imported step responses) through the model:
     NRMSE of wheel speeds, positions and currents where measured."""
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.predict import predict_runs
 
     robot, _ = _robot(model)
-    obs = Observations.from_runs(runs, robot)
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
+                                 robot)
+    loro = _baseline(robot, obs, model) if baseline else None
     preds = predict_runs(robot, obs)
     if not preds:
         raise UserError("the runs hold nothing to predict")
@@ -215,7 +231,9 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_
     if as_json:
         _echo_json({"model": str(model), "nrmse": top,
                     "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse} for p in preds],
-                    "plots": figs})
+                    "plots": figs,
+                    "leave_one_run_out": None if loro is None else [
+                        {"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in loro]})
         return
     for p in preds:
         click.echo(f"{p.run} ({p.procedure}):")
@@ -223,6 +241,22 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_
             click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
     for f in figs:
         click.echo(f"figure: {f}")
+    if loro is not None:
+        from omnibench.analysis.heldout_runs import table
+
+        click.echo("\nLeave-one-run-out NRMSE (each run predicted by models fitted to the other runs; "
+                   "floor runs by models fitted to every run in the air):")
+        click.echo(table(loro))
+
+
+def _baseline(robot, obs, model: Path) -> list:
+    """Leave-one-run-out errors of the model and the two black boxes (analysis/heldout_runs.py)."""
+    from omnibench.analysis.heldout_runs import PhysicsModel, leave_one_run_out
+
+    if len(obs.run_ids) < 2:
+        raise UserError("--baseline needs at least two runs (each is predicted from the others)")
+    return leave_one_run_out({f"physics ({model.name})": PhysicsModel(robot)}, obs,
+                             progress=lambda s: click.echo(f"baseline: {s}", err=True))
 
 
 commands = {"fit": fit_command, "validate-energy": validate_command, "predict": predict_command}

@@ -63,8 +63,8 @@ def monitor(port: str, duration: float, rate: int, every: float, as_json: bool) 
     """Show live telemetry (motors stay stopped): encoders, currents, battery, faults."""
     from omnibench.link.board import Board
 
-    if duration <= 0 or every <= 0:
-        raise UserError("--duration and --every must be positive seconds")
+    if not (0 < duration <= 86400 and 0 < every <= 86400):
+        raise UserError(f"--duration and --every must be seconds in (0, 86400], got {duration:g} and {every:g}")
     with Board.open(port) as board:
         board.configure(telemetry_hz=rate)
         next_print = -math.inf

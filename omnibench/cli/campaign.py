@@ -8,6 +8,9 @@ from pathlib import Path
 
 import click
 
+from omnibench.cli.plan import design_options
+from omnibench.errors import UserError
+
 
 @click.command("campaign")
 @click.option("--port", metavar="URL", help="Serial device, or sim://... for the simulated robot.")
@@ -23,22 +26,58 @@ import click
               metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
 @click.option("--resume", is_flag=True,
               help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
+@click.option("--without-current", is_flag=True,
+              help="Run the energy trajectories even with no battery current source (no energy is measured).")
+@click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
+              show_default=True, help="Who answers the prompts (see omnibench sweep --help).")
+@click.option("--plot", is_flag=True, help="A live matplotlib window of the wheel speeds (needs a display).")
 @click.option("--json", "as_json", is_flag=True, help="Print the campaign summary as JSON on stdout.")
+@click.option("--adaptive", is_flag=True,
+              help="Plan, run, fit, re-plan until every --target-se is met or the budget is spent (docs/design.md).")
+@design_options
+@click.option("--budget-minutes", type=float, default=None, help="--adaptive: at most this many minutes of robot time.")
+@click.option("--budget-actions", type=int, default=None, help="--adaptive: at most this many operator actions.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, resume: bool, as_json: bool) -> None:
+            ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
+            plot: bool, as_json: bool, adaptive: bool, target_se: str | None, cost: str | None,
+            robot_second: float, floor_length: float, no_current: bool, budget_minutes: float | None,
+            budget_actions: int | None) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
     from omnibench.bench.campaign import parse_stages, run_campaign
+    from omnibench.cli.stages import run_analysis
+
+    from omnibench.cli import verbosity
+
+    level = verbosity()
 
     def echo(line: str) -> None:
-        click.echo(line, err=as_json)
+        if level >= 0:
+            click.echo(line, err=as_json)
 
-    res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
-                       progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
-                       stages=parse_stages(analysis), resume=resume)
+    if adaptive:
+        from omnibench.analysis.design.space import Limits
+        from omnibench.bench.adaptive import run_adaptive_campaign
+        from omnibench.cli.plan import parse_costs
+
+        if resume:
+            raise UserError("--adaptive does not resume a campaign yet: start it in a new --out")
+        res = run_adaptive_campaign(port or "", out, target_se or "", robot_file=robot_file,
+                                    procedures_dir=procedures_dir, costs=parse_costs(cost, robot_second),
+                                    limits=Limits(floor_length=floor_length), current=not no_current,
+                                    budget_minutes=budget_minutes, budget_actions=budget_actions, echo=echo,
+                                    stages=parse_stages(analysis), analyse=run_analysis)
+    elif target_se:
+        raise UserError("--target-se needs --adaptive")
+    else:
+        res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
+                           progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
+                           stages=parse_stages(analysis), resume=resume,
+                           without_current=without_current, operator=who, analyse=run_analysis, plot=plot,
+                           verbosity=level)
     if as_json:
         from omnibench.runs.store import json_ready
 

@@ -53,8 +53,12 @@ def _procedures(text: str | None) -> list[str] | None:
               help="Family-wise significance level for adding an effect.")
 @click.option("--max-effects", default=3, show_default=True, type=int, help="Add at most this many effects.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the held-out fold assignment.")
+@click.option("--loro", is_flag=True,
+              help="Also leave-one-run-out: refit the declared model and each addition to all runs but one, "
+                   "predict that run (with the black boxes beside); report additions that cost a run as trade-offs.")
 def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path | None, as_json: bool,
-            candidates: str | None, procedures: str | None, alpha: float, max_effects: int, seed: int) -> None:
+            candidates: str | None, procedures: str | None, alpha: float, max_effects: int, seed: int,
+            loro: bool) -> None:
     """Fit the declared model to RUN..., find residual structure, add the library effect that
     earns its parameters on held-out run steps, repeat; report before/after errors."""
     if not (0.0 < alpha < 0.5) or not math.isfinite(alpha):
@@ -78,15 +82,30 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
 
     diag = diagnose(robot, obs, candidates=names, procedures=procs, alpha=alpha, max_effects=max_effects,
                     seed=seed, progress=progress)
+    held = None
+    if loro:
+        from omnibench.analysis.diagnosis.loro import heldout_runs
+
+        if len(obs.run_ids) < 2:
+            raise UserError("--loro needs at least two runs (each is predicted from the others)")
+        held = heldout_runs(diag, obs, progress=progress)
     written: dict[str, object] = {}
     if out is not None:
-        written["model"] = str(write_model(diag, out))
+        if held is not None and held.tradeoffs:
+            from omnibench.analysis.diagnosis.loro import trimmed
+
+            written["model"] = str(write_model(trimmed(diag, held, obs), out))
+        else:
+            written["model"] = str(write_model(diag, out))
     if plots is not None:
         written["plots"] = [str(p) for p in write_plots(diag, plots)]
     if as_json:
-        click.echo(json.dumps({**diag.to_json(), "written": written}, indent=2, default=_jsonable))
+        click.echo(json.dumps({**diag.to_json(), "written": written,
+                               "leave_one_run_out": held.to_json() if held else None}, indent=2, default=_jsonable))
         return
     click.echo(diag.text())
+    if held is not None:
+        click.echo(held.text())
     if "model" in written:
         click.echo(f"extended model written to {written['model']}")
     if "plots" in written:

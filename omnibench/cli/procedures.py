@@ -48,22 +48,37 @@ def _make(name: str) -> click.Command:
                   help="Operator answers (TOML) for unattended runs.")
     @click.option("--measurement-noise", type=float, default=None, metavar="M",
                   help="Simulation only: the simulated operator's tape noise, m (default from the procedure file).")
+    @click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
+                  show_default=True, help="Who answers the prompts: auto = the simulated operator on a simulator, "
+                  "else the person at the keyboard; person = always the keyboard (on a simulator the world follows "
+                  "your answers).")
+    @click.option("--without-current", is_flag=True, hidden=name != "energy",
+                  help="Drive the energy trajectories even with no battery current source (no energy is measured).")
+    @click.option("--wiring", type=click.Path(path_type=Path), metavar="FILE", default=None,
+                  help="Wiring file from omnibench commission. Default: ./wiring.toml when it exists.")
+    @click.option("--plot", is_flag=True, help="Also a live matplotlib window of the wheel speeds (needs a display).")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
     @click.option("--ammeter", metavar="URL", default=None, hidden=name != "energy",
                   help="SCPI ammeter on its own serial URL for the battery current (default: the board's sensor).")
     def cmd(port: str | None, procedure_file: Path | None, robot_file: Path | None, out: Path,
             dry_run: bool, resume: Path | None, answers: Path | None, measurement_noise: float | None,
-            as_json: bool, ammeter: str | None) -> None:
+            who: str, without_current: bool, wiring: Path | None, plot: bool, as_json: bool,
+            ammeter: str | None) -> None:
         from omnibench.bench.session import run_command
+        from omnibench.cli import verbosity
+
+        level = verbosity()
 
         def echo(line: str) -> None:
-            click.echo(line, err=as_json)
+            if level >= 0:
+                click.echo(line, err=as_json)
 
         result: dict[str, Any] = run_command(
             procedure, port=port, procedure_file=procedure_file, robot_file=robot_file, out=out,
             dry_run=dry_run, resume=resume, answers=answers, echo=echo,
             progress=not as_json and sys.stderr.isatty(), measurement_noise=measurement_noise,
-            ammeter=ammeter,
+            ammeter=ammeter, operator=who, without_current=without_current, wiring=wiring, plot=plot,
+            verbosity=level,
         )
         if as_json:
             from omnibench.runs.store import json_ready

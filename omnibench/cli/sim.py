@@ -20,13 +20,16 @@ def command() -> None:
 @click.option("--seed", type=int, default=None, help="Seed for sensor noise, faults and boot ids.")
 @click.option("--clock", type=click.Choice(["realtime", "fast"]), default="realtime", show_default=True,
               help="realtime: board time follows the wall clock (x --speed); fast: as fast as the host reads.")
-@click.option("--speed", type=float, default=None, help="Realtime clock: simulated seconds per wall second.")
+@click.option("--speed", type=float, default=None, help="Simulated seconds per wall second: always on the realtime clock, while telemetry is "
+              "off on the fast clock (a person at a prompt).")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any sim:// URL parameter, e.g. --set mode=upside_down --set drop=0.01 (repeatable).")
 @click.option("--status-file", type=click.Path(dir_okay=False), help="Keep the board's duties/faults/state in this JSON file.")
 @click.option("--ammeter", is_flag=True, help="Also serve a SCPI ammeter on a second pseudo-terminal (its path is line 2).")
+@click.option("--firmware", type=click.Path(dir_okay=False), default=None,
+              help="Run this board firmware (.elf, make -C firmware) in simavr instead of the simulated board.")
 def serve(world_file: str | None, seed: int | None, clock: str, speed: float | None, settings: tuple[str, ...],
-          status_file: str | None, ammeter: bool) -> None:
+          status_file: str | None, ammeter: bool, firmware: str | None) -> None:
     """Serve the simulated board on a pseudo-terminal until interrupted.
 
     Prints the device path on the first line of stdout (the ammeter's on the second with
@@ -48,6 +51,15 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
             raise UserError(f"--set needs KEY=VALUE, got {item!r}")
         params[key.strip()] = value.strip()
     _, world, _ = world_from_url("sim://omnibot?" + urlencode(params))
+    board = None
+    if firmware is not None:
+        from omnibench.sim.firmware.build import require
+
+        require("fil")
+        from omnibench.sim.firmware.board import FirmwareBoard
+
+        board = FirmwareBoard(world, firmware)
+        board.max_wall_s = 0.02  # stay responsive when the machine is slower than real time
     from omnibench.sim.pty_server import run_server  # imports the physics: after checking input
 
-    sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr))
+    sys.exit(run_server(world, status_file=status_file, ammeter=ammeter, out=sys.stdout, log=sys.stderr, board=board))

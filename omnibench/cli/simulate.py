@@ -39,8 +39,13 @@ def command(robot_path, commands_path, out_path, upside_down, payload, duration,
 
     robot = load_robot(robot_path) if robot_path else default_robot()
     cmds = load_commands(commands_path, max_duty=robot.max_duty)
-    if payload < 0:
-        raise UserError(f"--payload must not be negative, got {payload} kg")
+    if not 0 <= payload <= 1000:
+        raise UserError(f"--payload must be a mass in [0, 1000] kg, got {payload:g}")
+    if duration is not None and not 0 < duration <= 86400:
+        raise UserError(f"--duration must be in (0, 86400] s, got {duration:g}")
+    out_dir = Path(out_path).resolve().parent
+    if (out_dir / "run.json").is_file():
+        raise UserError(f"--out {out_path}: is inside the run directory {out_dir}; write elsewhere")
     if not (0 < dt <= 0.01):
         raise UserError(f"--dt must be in (0, 0.01] s, got {dt}")
     if rate <= 0 or rate > 1 / dt:

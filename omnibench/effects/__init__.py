@@ -6,5 +6,7 @@ kernel can simulate any of them and a robot file may declare them under [effects
 realistic size, the experiment that reveals it). docs/effects.md has the equations.
 """
 
-from omnibench.effects import driver, electrical, environment, friction_extra, load  # noqa: F401
+from omnibench.effects import driver, electrical, environment, friction_extra, load, timing  # noqa: F401
 from omnibench.effects.library import EFFECTS, Effect, effect_names  # noqa: F401
+
+EFFECTS.update(timing.library_effects())  # command timing (effects/timing.py)

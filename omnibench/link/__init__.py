@@ -1,18 +1,21 @@
 """Bytes on a serial port: the protocol description, codec (COBS + CRC), board client, ammeter.
 
 Knows nothing of friction or procedures. The wire format is docs/protocol.md, built from
-protocols/omnibot-board-v1.toml. What procedures use:
+protocols/omnibot-board-v2.toml. What procedures use:
 
     from omnibench.link.board import Board
     from omnibench.link.ammeter import open_ammeter
 
-    Board.open(url, *, timeout=3.0, baudrate=None, protocol="omnibot-board-v1",
+    Board.open(url, *, timeout=3.0, baudrate=None, protocol="omnibot-board-v2",
                strict=True, heartbeat=True) -> Board        # context manager: exit stops motors
+                                  # heartbeat: PING inside the caller's reads only (no thread);
+                                  # device ports are locked (a second process is refused)
     board.hello -> Hello          # protocol_version, firmware_version, board_id, boot_id,
                                   # counts_per_rev, max_telemetry_rate, capabilities, as_dict()
     board.configure(*, telemetry_hz=None, watchdog_s=None) -> None
-    board.set_duties(duties: Sequence[float]) -> None       # 4 values in [-1, 1]
-    board.stop(*, raise_errors=True) -> None                # the one stop for every exit path
+    board.set_duties(duties: Sequence[float]) -> float      # 4 values in [-1, 1]; board time applied
+    board.stop(*, raise_errors=True) -> float | None        # the one stop for every exit path
+    board.keepalive() -> None                               # one PING, no ACK wait (feeds the watchdog)
     board.reset_encoders() -> None
     board.clear_faults() -> None
     board.ping() -> float                                   # round trip, s (wall clock)

@@ -13,12 +13,17 @@ Timing follows the board's clock (telemetry time stamps), never the host's wall 
 so the same procedure runs in real time on the robot and faster on the simulator.
 
 Reading is pull-based: bytes are read only inside the client's calls, in the caller's
-thread. While reading, the client sends a PING whenever a quarter of the watchdog timeout
-of board time has passed since it last sent anything; a small background thread does the
-same on the wall clock for the time the caller spends elsewhere, but only while the caller
-has made a client call within the last HANG_S (2 s) or 4 watchdog timeouts. So the board's
-watchdog never trips during a run, and does trip if this process dies or its procedure
-hangs (a procedure reads samples the whole time its motors run).
+thread, and nothing else ever writes to the port: there is no background thread. With
+`heartbeat=True` (the default, for scripts) the client sends a PING while the caller reads
+whenever a quarter of the watchdog timeout of board time has passed since it last sent
+anything; the bench runner opens with `heartbeat=False` and feeds the watchdog from its own
+loop. Either way the watchdog is fed only while the caller makes progress, so a hung
+procedure stops the motors within the watchdog timeout.
+
+Every board frame that carries a time is checked against the last one before it is used:
+board time that runs backwards, or jumps further than the frames lost in between (sequence
+gap) could explain, is a link fault: the frame is dropped and counted (`stats.time_faults`),
+never taken as the passage of time.
 """
 
 from __future__ import annotations
@@ -39,10 +44,10 @@ from omnibench.link.types import Hello, LinkStats, Pose, Sample
 from omnibench.link.urls import open_url
 
 READ_TIMEOUT_S = 0.05       #: wall-clock timeout of one blocking port read
-ACK_TIMEOUT_S = 0.3         #: wall-clock wait for an ACK before sending again
-ACK_TIMEOUT_BOARD_S = 0.1   #: ... or this much board time (telemetry keeps arriving)
-RETRIES = 3                 #: extra attempts per command
-HANG_S = 2.0                #: caller silent this long (wall): the heartbeat thread stops covering for it
+ACK_TIMEOUT_S = 0.1         #: wall-clock wait for an ACK before sending again
+ACK_TIMEOUT_BOARD_S = 0.03  #: ... or this much board time + one telemetry period (telemetry keeps arriving)
+RETRIES = 20                #: extra attempts per command (a 2 % byte-error cable loses ~40 % of round trips)
+TIME_SLACK_S = 0.002        #: allowance on a frame's board time beyond the expected telemetry period
 STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
 PROBE_S = 0.45              #: probe unanswered for this long: the link is lost
 MODES = ("ground", "upside_down")
@@ -73,7 +78,7 @@ class Board:
         self._port = port
         self._deframer = codec.deframer()
         self._io = threading.RLock()        # reading and decoding
-        self._tx = threading.Lock()         # writing (heartbeat thread writes too)
+        self._tx = threading.Lock()         # writing
         self._tx_seq = 0
         self._acks: dict[int, Message] = {}
         self._replies: dict[str, Message] = {}
@@ -81,6 +86,12 @@ class Board:
         self._last_seq: int | None = None
         self._t_wraps = 0
         self._t_last_raw: int | None = None
+        self._t_ref: float | None = None    # board time of the last frame accepted (s)
+        enc = next(f for f in self.spec.message("TELEMETRY").fields if f.name == "encoder")
+        self._enc_range = enc.raw_range     # the encoder counters wrap at the field's width
+        self._enc: list[int] | None = None  # unwrapped counters of the last sample
+        self._enc_raw: tuple[int, ...] = ()
+        self._bound_period = math.inf       # largest telemetry period expected now (s); inf: off
         self._board_time = 0.0
         self._last_tx_board = 0.0
         self._last_tx_wall = time.monotonic()
@@ -94,14 +105,14 @@ class Board:
         self._ammeter_next = 0.0
         self._lost_error: BoardError | None = None
         self._closed = False
-        self._hb_stop = threading.Event()
-        self._hb_thread: threading.Thread | None = None
         self._strict = True                 # open(strict=...): refuse another protocol version
         self._faults_seen = 0               # fault bits of the latest sample
         self._bad_frames = 0                # valid CRC but unknown id or wrong length
         self._foreign_version: int | None = None  # from a HELLO whose layout is not ours
         self._reset_reported = False
+        self._reset_id = self.spec.message("RESET_ENCODERS").id
         self._reset_message = ""
+        self._rx_head = bytearray()          # the first bytes received (to recognise a text-printing sketch)
 
     # ================================================================== opening
     @classmethod
@@ -115,8 +126,8 @@ class Board:
         `baudrate` defaults to the protocol's ([board].baudrate, 115200). With
         `strict` (default) a board speaking another protocol version raises BoardError
         and nothing is sent to it; with strict=False the board opens (for `board info`)
-        but refuses to drive the motors. `heartbeat=False` never sends PINGs on its own
-        (only for testing the board's watchdog).
+        but refuses to drive the motors. `heartbeat=False` never sends PINGs on its own:
+        the caller feeds the watchdog (`ping()`), as the bench runner does from its loop.
         """
         spec = load_protocol(protocol)
         baud = int(baudrate or spec.board.get("baudrate", 115200))
@@ -125,6 +136,15 @@ class Board:
         board._strict = strict
         try:
             board._handshake(timeout, baud)
+        except BoardError:
+            board._close_port()
+            if board.hello is None and board._foreign_version is None:
+                from omnibench.link.sniff import sniff_sketch
+
+                hint = sniff_sketch(url, bytes(board._rx_head), baud)
+                if hint:
+                    raise BoardError(hint) from None
+            raise
         except BaseException:
             board._close_port()
             raise
@@ -153,7 +173,8 @@ class Board:
             raise BoardError(
                 f"no HELLO from a board on {self.url} within {timeout:g} s: check the port, the baud rate "
                 f"(board expects {self.spec.board.get('baudrate', 115200)}, opened at {baud}), that the board "
-                f"is powered and runs {self.spec.name} firmware")
+                f"is powered and runs {self.spec.name} v{self.spec.version} firmware (frames of another version's "
+                f"frame check, e.g. v1's CRC-16, are not recognised)")
         self.hello = self._to_hello(hello)
         self._replies.pop("HELLO", None)
         self._acks.clear()
@@ -165,7 +186,6 @@ class Board:
         self._command("STOP")
         self._command("CONFIGURE", {"watchdog": self._watchdog_s, "telemetry_rate": 0})
         self._queue.clear()  # telemetry a previous session left running is not this session's
-        self._start_heartbeat()
 
     def _strict_fail_message(self) -> str:
         assert self.hello is not None
@@ -199,29 +219,28 @@ class Board:
         finally:
             self.close()
 
-    def stop(self, *, raise_errors: bool = True) -> None:
+    def stop(self, *, raise_errors: bool = True) -> float | None:
         """Stop all four motors now; the one stop used on every exit path.
 
         Sends STOP (always accepted by the board, even with faults latched) and waits for
         its ACK. With `raise_errors=False` (exit paths that are already failing) it tries
-        its best and never raises. Safe to call many times and on a lost link.
+        its best and never raises. Safe to call many times and on a lost link. Returns the
+        board time (s) at which the board applied the stop (None if not acknowledged).
         """
         if self._closed or self.hello is None or not self.version_ok:
-            return
+            return None
         try:
-            self._command("STOP", check_reset=False)
+            return self.ack_time(self._command("STOP", check_reset=False))
         except (BoardError, serial.SerialException, OSError):
             if raise_errors:
                 raise
+        return None
 
     def close(self) -> None:
-        """Stop the heartbeat and close the port (call stop() first, or use `with`)."""
+        """Close the port (call stop() first, or use `with`)."""
         if self._closed:
             return
         self._closed = True
-        self._hb_stop.set()
-        if self._hb_thread is not None and self._hb_thread is not threading.current_thread():
-            self._hb_thread.join(timeout=1.0)
         self._close_port()
 
     def _close_port(self) -> None:
@@ -231,13 +250,20 @@ class Board:
             pass
 
     # ================================================================== commands
-    def set_duties(self, duties: Sequence[float]) -> None:
-        """Apply four duties (FL, FR, RL, RR), each in [-1, 1]; held until changed or stopped."""
+    def set_duties(self, duties: Sequence[float]) -> float:
+        """Apply four duties (FL, FR, RL, RR), each in [-1, 1]; held until changed or stopped.
+
+        Returns the board time (s) at which the board applied them (from the ACK): samples
+        taken under these duties have a later time and report these duties."""
         u = [float(x) for x in duties]
         if len(u) != 4 or not all(math.isfinite(x) and -1.0 <= x <= 1.0 for x in u):
             raise UserError(f"duties must be 4 numbers in [-1, 1], got {list(duties)!r}")
         self._require_drivable()
-        self._command("SET_DUTIES", {"duty": u})
+        return self.ack_time(self._command("SET_DUTIES", {"duty": u}))
+
+    def ack_time(self, ack: Message) -> float:
+        """Board time (s, unwrapped) in an ACK: when the board applied the command."""
+        return self._unwrap_peek(ack.fields["time"])
 
     def configure(self, *, telemetry_hz: float | None = None, watchdog_s: float | None = None) -> None:
         """Set the telemetry rate (Hz, 0 = off) and/or the watchdog timeout (s); None keeps it."""
@@ -248,8 +274,16 @@ class Board:
             raise UserError(f"telemetry rate must be a whole number of Hz in 0..{max_hz}, got {telemetry_hz!r}")
         if not 0.02 <= wd <= 10.0:
             raise UserError(f"watchdog timeout must be in 0.02..10 s, got {watchdog_s!r}")
-        self._command("CONFIGURE", {"watchdog": wd, "telemetry_rate": int(hz)})
+        old = 1.0 / self._telemetry_hz if self._telemetry_hz > 0 else math.inf
+        new = 1.0 / hz if hz > 0 else math.inf
+        self._bound_period = max(old, new)  # frames of either schedule (or none) may arrive meanwhile
+        try:
+            self._command("CONFIGURE", {"watchdog": wd, "telemetry_rate": int(hz)})
+        except BaseException:
+            self._bound_period = old
+            raise
         self._telemetry_hz, self._watchdog_s = hz, wd
+        self._bound_period = new
 
     def reset_encoders(self) -> None:
         """Set the four encoder counters to zero."""
@@ -258,6 +292,13 @@ class Board:
     def clear_faults(self) -> None:
         """Clear latched faults (e.g. after the watchdog fired); motors stay stopped."""
         self._command("CLEAR_FAULTS")
+
+    def keepalive(self) -> None:
+        """Feed the board's watchdog: one PING, not waiting for its ACK (any valid frame the
+        board receives restarts its watchdog; on a lossy cable send these often instead of
+        retrying one)."""
+        with self._io:
+            self._send("PING")
 
     def ping(self) -> float:
         """Command round trip: wall-clock seconds from sending PING to its ACK."""
@@ -468,6 +509,8 @@ class Board:
             raise self._lost(f"read failed: {exc}") from None
         frames = 0
         if data:
+            if len(self._rx_head) < 2048:
+                self._rx_head += data[:2048 - len(self._rx_head)]
             self._last_rx_wall = time.monotonic()
             self.stats.bytes_in += len(data)
             for body in self._deframer.feed(data):
@@ -493,6 +536,9 @@ class Board:
             if len(body) >= 5 and body[0] == hello_id:
                 self._foreign_version = int.from_bytes(body[3:5], "little")
             return
+        gap = self._seq_gap(msg)
+        if "time" in msg.fields and not self._time_plausible(msg, gap):
+            return
         self.stats.frames += 1
         self._track_seq(msg)
         name = msg.name
@@ -500,6 +546,8 @@ class Board:
             self._on_telemetry(msg)
         elif name == "ACK":
             self._set_time(msg.fields["time"])
+            if msg.fields["cmd_id"] == self._reset_id and msg.fields["status"] == self.spec.enums["status"]["OK"]:
+                self._enc = None  # the counters restarted at zero
             self._acks[msg.fields["cmd_seq"]] = msg
             if len(self._acks) > 256:
                 for k in list(self._acks)[:128]:
@@ -512,9 +560,42 @@ class Board:
         else:
             self._replies[name] = msg
 
+    def _seq_gap(self, msg: Message) -> int:
+        """Board frames missing between the last frame accepted and `msg` (0: none)."""
+        if self._last_seq is None:
+            return 0
+        gap = (msg.seq - self._last_seq - 1) & 0xFFFF
+        return gap if gap < 0x8000 else 0
+
+    def _time_plausible(self, msg: Message, gap: int) -> bool:
+        """Is the board time in `msg` possible after the last frame accepted?
+
+        It may not run backwards, and with telemetry on it may not advance more than one
+        telemetry period per frame sent since (the frames received plus the `gap` lost),
+        with TIME_SLACK_S of jitter. Else the frame is a link fault: dropped and counted."""
+        if msg.name == "HELLO" or (self.hello is not None and msg.name == "EVENT"
+                                   and self.spec.enum_name("event", msg.fields["code"]) == "BOOT"):
+            return True  # a reboot restarts the board clock (detected by its boot id)
+        t = self._unwrap_peek(msg.fields["time"])
+        if self._t_ref is None:
+            self._t_ref = t
+            return True
+        dt = t - self._t_ref
+        limit = (gap + 1) * self._bound_period * 1.5 + TIME_SLACK_S
+        if dt < 0 or dt > limit:
+            self.stats.time_faults += 1
+            why = "ran backwards" if dt < 0 else "jumped"
+            self.stats.events.append((self._t_ref, "TIME_FAULT",
+                                      f"{msg.name} board time {why} by {dt:+.6f} s (gap {gap} frames)"))
+            return False
+        self._t_ref = t
+        return True
+
     def _track_seq(self, msg: Message) -> None:
         if msg.name == "HELLO" and self.hello is not None and msg.fields["boot_id"] != self.hello.boot_id:
             self._last_seq = msg.seq
+            self._t_ref = None
+            self._enc = None
             return
         if self._last_seq is not None:
             gap = (msg.seq - self._last_seq - 1) & 0xFFFF
@@ -546,10 +627,23 @@ class Board:
             except (BoardError, serial.SerialException, OSError, ValueError):
                 amm = math.nan
         self._queue.append(Sample(
-            t=t, seq=msg.seq, encoder=tuple(f["encoder"]), motor_current=tuple(f["motor_current"]),
+            t=t, seq=msg.seq, encoder=self._unwrap_encoders(tuple(f["encoder"])), motor_current=tuple(f["motor_current"]),
             battery_voltage=f["battery_voltage"], battery_current=f["battery_current"],
             faults=int(f["faults"]), duty=tuple(f["duty"]), ammeter_current=amm))
         self.stats.telemetry += 1
+
+    def _unwrap_encoders(self, raw: tuple[int, ...]) -> tuple[int, int, int, int]:
+        """Full encoder counts from the wrapping counters on the wire: each sample adds the
+        change since the previous one, taken as the smallest in the field's range."""
+        lo, hi = self._enc_range
+        if self._enc is None:
+            self._enc = list(raw)
+        else:
+            span = hi - lo + 1
+            for j, (r, old) in enumerate(zip(raw, self._enc_raw)):
+                self._enc[j] += (r - old - lo) % span + lo
+        self._enc_raw = raw
+        return tuple(self._enc)  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ board clock
     def _unwrap_peek(self, t_raw_s: float) -> float:
@@ -581,21 +675,3 @@ class Board:
                 self._send("PING")
             except BoardError:
                 pass
-
-    def _start_heartbeat(self) -> None:
-        if not self._heartbeat_on or self._hb_thread is not None:
-            return
-        self._hb_thread = threading.Thread(target=self._heartbeat_loop, name="omnibench-heartbeat", daemon=True)
-        self._hb_thread.start()
-
-    def _heartbeat_loop(self) -> None:
-        """Wall-clock heartbeat for when the caller is not reading (real time boards)."""
-        while not self._hb_stop.wait(self._heartbeat_interval() / 2):
-            now = time.monotonic()
-            if now - self._last_call_wall > max(HANG_S, 4 * self._watchdog_s):
-                continue  # the caller hung: let the board's watchdog stop the motors
-            if now - self._last_tx_wall >= self._heartbeat_interval():
-                try:
-                    self._send("PING")
-                except (BoardError, UserError):
-                    return

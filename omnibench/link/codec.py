@@ -39,7 +39,7 @@ class Message:
 class Codec:
     """Encode and decode the messages of one protocol description.
 
-    Build it once per link: `Codec(load_protocol("omnibot-board-v1"))`.
+    Build it once per link: `Codec(load_protocol("omnibot-board-v2"))`.
     """
 
     def __init__(self, spec: ProtocolSpec | None = None) -> None:

@@ -1,6 +1,7 @@
 """Framing: COBS byte stuffing with a 0x00 delimiter and a CRC on every frame.
 
-A frame on the wire is `COBS(body + CRC(body)) + b"\\x00"`; `body` is header + payload.
+A frame on the wire is `COBS(body + CRC(body)) + b"\\x00"`; `body` is header + payload; the
+CRC (width/8 bytes, little-endian) is the one the protocol description names.
 Because 0x00 never appears inside an encoded frame, a receiver that sees garbage simply
 waits for the next 0x00 and starts again: it resynchronises within one frame.
 """
@@ -41,23 +42,28 @@ class Crc:
             reverse_output=spec.refout,
         )
         self._calc = Calculator(config, optimized=True)
-        # CRC-16/CCITT-FALSE is exactly binascii.crc_hqx with init 0xFFFF (C speed); any
-        # other variant uses the `crc` package. Both must give the spec's check value.
-        self._hqx = (spec.width == 16 and spec.poly == 0x1021 and not spec.refin and not spec.refout
-                     and spec.xorout == 0)
-        for fast in ((True, False) if self._hqx else (False,)):
+        # Two catalogue variants have a C implementation in the standard library:
+        # CRC-16/CCITT-FALSE is binascii.crc_hqx with init 0xFFFF, CRC-32/ISO-HDLC is
+        # binascii.crc32. Any other variant uses the `crc` package. Both paths must give the
+        # description's check value.
+        p = (spec.width, spec.poly, spec.init, spec.refin, spec.refout, spec.xorout)
+        self._fast = {(16, 0x1021, 0xFFFF, False, False, 0): "hqx",
+                      (32, 0x04C11DB7, 0xFFFFFFFF, True, True, 0xFFFFFFFF): "crc32"}.get(p)
+        for fast in ((True, False) if self._fast else (False,)):
             got = self._checksum(b"123456789", fast)
             if got != spec.check:
                 raise ValueError(f"CRC {spec.name}: check value is 0x{got:X}, description says 0x{spec.check:X}")
 
     def _checksum(self, data: bytes, fast: bool) -> int:
-        if fast:
+        if fast and self._fast == "hqx":
             return binascii.crc_hqx(data, self.spec.init)
+        if fast and self._fast == "crc32":
+            return binascii.crc32(data)
         return int(self._calc.checksum(data))
 
     def checksum(self, data: bytes) -> int:
         """CRC of `data` as an integer."""
-        return self._checksum(data, self._hqx)
+        return self._checksum(data, self._fast is not None)
 
     def append(self, body: bytes) -> bytes:
         """`body` followed by its CRC, little-endian."""

@@ -2,7 +2,7 @@
 
 The same `ProtocolSpec` builds the host codec and the simulated board's codec, so a
 different firmware is supported by writing a new description file, not new code.
-See protocols/omnibot-board-v1.toml for the schema and docs/protocol.md for the prose.
+See protocols/omnibot-board-v2.toml for the schema and docs/protocol.md for the prose.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ WIRE_TYPES: dict[str, tuple[str, int]] = {
     "i32": ("i", 4),
 }
 
-DEFAULT_PROTOCOL = "omnibot-board-v1"
+DEFAULT_PROTOCOL = "omnibot-board-v2"
 
 
 @dataclass(frozen=True)

@@ -90,6 +90,7 @@ class LinkStats:
     crc_errors: int = 0      #: chunks with a bad CRC
     framing_errors: int = 0  #: chunks with bad COBS, bad length, unknown id
     retries: int = 0         #: commands sent again because no ACK came
+    time_faults: int = 0     #: frames dropped: board time ran backwards or jumped (see Board)
     bytes_in: int = 0
     bytes_out: int = 0
     events: list = field(default_factory=list)  #: (board time, event name, arg)

@@ -18,6 +18,9 @@ class Scenario:
     payload: float = 0.0
     wheel_mass: tuple[float, float, float, float] | None = None
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    #: wheels (1..4) in the order the firmware sends their commands (serial_command_latency);
+    #: None: FL, FR, RL, RR
+    command_order: tuple[int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ("ground", "upside_down"):

@@ -182,6 +182,29 @@ def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndar
     return (idx + 1).astype(np.int64), np.ascontiguousarray(u_full)
 
 
+def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
+    """Latency of each wheel's command (4,), s, from the enabled timing terms
+    (omnibench.effects.timing): zero unless the robot or its world carries one."""
+    from omnibench.effects.timing import wheel_delays
+
+    return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
+
+
+def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cmd, dt: float):
+    """The duty schedules as the motors receive them: each wheel shifted by its latency, a
+    change inside a physics step averaged over it (unchanged, the same arrays, when no
+    trajectory has a latency)."""
+    from omnibench.effects.timing import delay_schedules
+
+    delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
+    if not np.any(delays):
+        return t_cmd, u_cmd
+    t = np.asarray(t_cmd, dtype=float)
+    U = np.asarray(u_cmd, dtype=float).reshape(-1, t.shape[0], 4)
+    U = np.broadcast_to(U, (len(robots),) + U.shape[1:])
+    return delay_schedules(t, U, delays, dt)
+
+
 @dataclass
 class BatchResult:
     """Recorded signals of B trajectories: array (B, n_rec, n_signals), times t (n_rec,)."""
@@ -233,6 +256,7 @@ def simulate_batch(
     mod = kernel.load_kernel(lay)
     preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
     n_steps = int(round(t_end / dt))
+    t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd, dt)
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
     if U.shape[0] not in (1, B):
         raise ValueError(f"{U.shape[0]} command sets for {B} trajectories")
@@ -345,6 +369,8 @@ class Simulator:
         self._prep = prep
         self._sub = np.array([stable_substeps(prep.substeps_lambda, self.dt, self.method)], dtype=np.int64)
         self._duties = np.zeros(4)
+        self._delays = command_delays(self.robot, scenario)
+        self._history: list[tuple[float, np.ndarray]] = []  # (time issued, duties): latency queue
         self._last = self._advance_steps(np.zeros(4), 0)
 
     def _advance_steps(self, duties: np.ndarray, n: int) -> np.ndarray:
@@ -374,11 +400,38 @@ class Simulator:
         target = int(round((self.t + duration) / self.dt))
         n = max(0, target - self._steps)
         self._duties = duties
-        if n:
+        if np.any(self._delays):
+            self._advance_delayed(duties, target)
+        elif n:
             self._last = self._advance_steps(duties, n)
         else:
             self._last = self._advance_steps(duties, 0)
         return self.state
+
+    def _advance_delayed(self, duties: np.ndarray, target: int) -> None:
+        """`advance` with command latency: each wheel acts on the duties issued delays[j] s
+        earlier. Steps in which a delayed command arrives get the step's average duty (as in
+        `simulate_batch`); between arrivals the steps run in one call."""
+        from omnibench.effects.timing import step_average
+
+        self._history.append((self.t, duties))
+        dt = self.dt
+        t_start = self.t
+        while self._steps < target:
+            now = self.t
+            arrivals = [t_c + d for t_c, _ in self._history for d in self._delays if t_c + d > now + 1e-9 * dt]
+            first = min((math.floor(a / dt + 1e-9) for a in arrivals), default=target)
+            if first > self._steps:  # no arrival before step `first`: hold the current duties
+                n = min(first, target) - self._steps
+                self._last = self._advance_steps(step_average(self._history, self._delays, now, now + dt), n)
+            else:  # an arrival inside this step: its average duty
+                self._last = self._advance_steps(step_average(self._history, self._delays, now, now + dt), 1)
+        if self.t == t_start:  # nothing to integrate: the signals at the current state
+            self._last = self._advance_steps(step_average(self._history, self._delays, self.t, self.t + dt), 0)
+        # forget commands every wheel has moved past (keep the one each wheel still holds)
+        done = [k for k, (t_c, _) in enumerate(self._history) if t_c + self._delays.max() <= self.t - dt]
+        if done:
+            del self._history[: done[-1]]
 
     @property
     def state(self) -> SimState:

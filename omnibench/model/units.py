@@ -1,10 +1,25 @@
-"""Read a value that may carry a unit ("15.75 kg", "45 deg") into SI, with a clear error."""
+"""Read a value that may carry a unit ("15.75 kg", "45 deg") into SI, with a clear error.
+
+A string is parsed by a small grammar first: one decimal number, then a unit made only of
+unit names, `*`, `/`, spaces, parentheses and one-digit exponents (`m/s^2`, `kg*m**2`). Only
+that unit is handed to pint, never the whole string, so an input such as "9**9**9 V" cannot
+make pint compute (pint evaluates arithmetic in quantity strings); it is refused at once.
+"""
 
 from __future__ import annotations
 
+import math
+import re
 from functools import lru_cache
 
 import pint
+
+_NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d{1,3})?"
+_NAME = r"[^\W\d](?:[^\W]|°)*|°|%|Ω|µ\w*"
+_UNIT = rf"(?:{_NAME}|\()(?:{_NAME}|[*/() ]|\*\*-?\d|\^-?\d)*"
+_POWER_OF_POWER = re.compile(r"(?:\*\*|\^)-?\d\s*\)*\s*(?:\*\*|\^)")  # m**9**9: pint would compute it
+_QUANTITY = re.compile(rf"\s*({_NUMBER})\s*({_UNIT})?\s*")
+MAX_LENGTH = 64  #: longer strings are refused before any parsing
 
 
 @lru_cache(maxsize=1)
@@ -12,24 +27,44 @@ def registry() -> pint.UnitRegistry:
     return pint.UnitRegistry()
 
 
-def to_si(value: object, unit: str) -> float:
-    """`value` (a number, already SI, or a string with a unit) as a float in `unit`.
+def parse_quantity(text: str) -> tuple[float, str | None]:
+    """(number, unit text or None) of "12.5 V"; ValueError if it is not number + unit name."""
+    m = _QUANTITY.fullmatch(text) if len(text) <= MAX_LENGTH else None
+    if m is None or _POWER_OF_POWER.search(m.group(2) or ""):
+        raise ValueError(f"cannot read {text[:MAX_LENGTH]!r} as a number with a unit (e.g. '12 V', '0.5 s')")
+    number = float(m.group(1))
+    if not math.isfinite(number):
+        raise ValueError(f"{text!r} is not a finite number")
+    unit = (m.group(2) or "").strip()
+    return number, unit or None
 
-    Raises ValueError with a short reason (wrong dimension, not a number).
+
+def to_si(value: object, unit: str) -> float:
+    """`value` (a number, already SI, or a string with a unit) as a finite float in `unit`.
+
+    Raises ValueError with a short reason (wrong dimension, not a number, NaN or infinite).
     """
     if isinstance(value, bool):
         raise ValueError(f"expected a number in {unit}, got {value!r}")
     if isinstance(value, (int, float)):
+        if not math.isfinite(float(value)):
+            raise ValueError(f"expected a finite number in {unit}, got {value!r}")
         return float(value)
     if not isinstance(value, str):
         raise ValueError(f"expected a number in {unit}, got {value!r}")
+    number, unit_text = parse_quantity(value)
     ureg = registry()
-    try:
-        q = ureg.Quantity(value)
-    except Exception as exc:  # pint raises several types for garbage
-        raise ValueError(f"cannot read {value!r} as a quantity ({type(exc).__name__})") from None
     target = ureg.Quantity(1.0, unit if unit != "1" else "dimensionless")
+    if unit_text is None:
+        return number  # a bare number is SI
     try:
-        return float(q.to(target.units).magnitude)
+        q = ureg.Quantity(number, ureg.parse_units(unit_text.replace("^", "**")))
+    except Exception as exc:  # pint raises several types for unknown names
+        raise ValueError(f"cannot read {value!r}: unknown unit {unit_text!r} ({type(exc).__name__})") from None
+    try:
+        out = float(q.to(target.units).magnitude)
     except pint.DimensionalityError:
         raise ValueError(f"{value!r} is not in units compatible with {unit}") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{value!r} is out of range")
+    return out

@@ -24,6 +24,7 @@ import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,12 +100,18 @@ def dumps(obj: Any) -> str:
 def write_json_atomic(path: Path, obj: Any) -> None:
     """Write JSON to `path` so that a crash leaves either the old or the new file, never half."""
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(json.dumps(_clean(obj), default=_json_default, indent=2, allow_nan=False))
-        fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    text = json.dumps(_clean(obj), default=_json_default, indent=2, allow_nan=False) + "\n"
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)  # no stray temporary file (e.g. the disk is full)
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise
 
 
 def _fmt(v: Any) -> str:
@@ -121,7 +128,8 @@ def _fmt(v: Any) -> str:
 
 
 def new_run_dir(out: Path, procedure: str) -> Path:
-    """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created)."""
+    """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created; an imported run
+    passes its source file's name instead of the procedure)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
@@ -134,6 +142,12 @@ def new_run_dir(out: Path, procedure: str) -> Path:
         except FileExistsError:
             n += 1
             path = Path(f"{base}-{n}")
+
+
+def unique_run_id(path: Path) -> str:
+    """The run's id: its directory name plus 8 random hex digits, so two runs started in the
+    same second in two folders never share an id (the analysis merges runs by id)."""
+    return f"{Path(path).name}-{uuid.uuid4().hex[:8]}"
 
 
 class RunWriter:
@@ -177,10 +191,12 @@ class RunWriter:
         port: str | None = None,
         counts_per_rev: float | None = None,
         extra: Mapping[str, Any] | None = None,
+        name: str | None = None,
     ) -> "RunWriter":
-        """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`)."""
+        """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`),
+        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure)."""
         if run_dir is None:
-            path = new_run_dir(Path(out), procedure)
+            path = new_run_dir(Path(out), name or procedure)
         else:
             path = Path(run_dir)
             path.mkdir(parents=True, exist_ok=True)
@@ -193,7 +209,7 @@ class RunWriter:
         meta: dict[str, Any] = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
-            "run_id": path.name,
+            "run_id": unique_run_id(path),
             "procedure": procedure,
             "procedure_file": procedure_file,
             "procedure_text": procedure_text,

@@ -12,6 +12,23 @@ Two kinds of file (shared/data/omnibot-tfm/README.md):
   Becomes a ``step_response`` run: one step per constant-command segment, raw samples with
   duty = command/127, board time = millis/1000 s, encoder counts times the sign map.
 
+- ``results_ground_x.mat`` (older analysis format): robot on the floor driving forward; ``t, x,
+  m`` the raw log of the last square wave (signs already corrected). Becomes a ``step_response``
+  run with ``mode = "ground"``; the fitted gains ``Ks`` / ``fits`` / ``Ts`` are kept in run.json
+  (``fitted_gains``), the 1 ms resampled ``tr``/``mr`` are not imported (not measurements).
+- ``inputs.mat``: ``data`` (6 x N) rows = ``millis()``, drive value in [-1, 1] (command =
+  trunc(127 value)), encoder counts FL, FR, BL, BR, written by the RC sketch. Becomes a
+  ``random_duty`` run: wheels in the air, one step per constant command ("hold" steps of a
+  hand-driven command, not a square wave); its default sign map is read off the data.
+
+Firmware timing (README of the data): each loop sends four 4-byte Sabertooth packets at 9600
+baud (4.17 ms each) in the sketch's order, after reading the encoders (square-wave sketch,
+FL, FR, BL, BR) or before (RC sketch ``ardu.ino.ino``, FL, FR, BR, BL: the commands of a log
+line left 4 packets before its time stamp). Every run records it in run.json ``firmware_timing``
+(sketch, ``command_order``, ``packet_s``, ``command_offset_s``: when the first packet of a
+logged command started, relative to its time stamp) and the analysis uses it: the offset shifts
+the logged schedule, the order is what ``serial_command_latency`` follows.
+
 Sign map: the 2019 firmware negated the FR and BR encoder readings and drove FL and FR with
 the negated command, so in the raw square-wave logs wheels 2 and 4 read negative speed for a
 positive command. The map multiplies each wheel's logged counts (and speeds) so that a
@@ -39,6 +56,15 @@ RAW_SIGNS = (1, -1, 1, -1)  # square-wave logs: wheels 2 and 4 read negative for
 JACKED_SIGNS = (1, 1, 1, 1)  # results_jacked.mat: already corrected by the thesis scripts
 
 SOURCE = "InigoMoreno/TFM matlab/ (2019 master's thesis logs)"
+PACKET_S = 4 * 10 / 9600.0  # one 4-byte Sabertooth packet at 9600 baud, s
+
+#: the two 2019 sketches' command timing (shared/data/omnibot-tfm/README.md)
+SQUARE_SKETCH = {"sketch": "arduino/square/square.ino", "command_order": [1, 2, 3, 4],
+                 "commands": "after reading the encoders", "packet_s": PACKET_S, "command_offset_s": 0.0,
+                 "channels": {"FL": "128/2", "FR": "128/1", "RL": "129/1", "RR": "129/2"}}
+RC_SKETCH = {"sketch": "arduino/ardu.ino.ino", "command_order": [1, 2, 4, 3],
+             "commands": "before reading the encoders", "packet_s": PACKET_S, "command_offset_s": -4 * PACKET_S,
+             "channels": {"FL": "128/1", "FR": "128/2", "RL": "129/2", "RR": "129/1"}}
 
 
 def parse_signs(text: str) -> tuple[int, int, int, int]:
@@ -67,13 +93,17 @@ def _load(path: Path) -> dict[str, Any]:
 
 
 def kind_of(data: dict[str, Any]) -> str:
-    """'jacked' (has ws/amps) or 'square' (has a 7-row `data`)."""
+    """'jacked' (ws/amps), 'ground' (Ks/fits with a raw t, x, m), 'square' (7-row `data`) or
+    'rc' (6-row `data`)."""
     if "ws" in data and "amps" in data:
         return "jacked"
+    if "Ks" in data and all(k in data for k in ("t", "x", "m")):
+        return "ground"
     d = data.get("data")
-    if d is not None and getattr(d, "ndim", 0) == 2 and d.shape[0] == 7 and d.shape[1] > 1:
-        return "square"
-    raise UserError("file holds neither `ws`/`amps` (jacked sweep) nor a 7-row `data` (square wave)")
+    if d is not None and getattr(d, "ndim", 0) == 2 and d.shape[1] > 1 and d.shape[0] in (6, 7):
+        return "square" if d.shape[0] == 7 else "rc"
+    raise UserError("file holds none of `ws`/`amps` (jacked sweep), `Ks` with `t`, `x`, `m` (floor "
+                    "runs), a 7-row `data` (square wave) or a 6-row `data` (RC log)")
 
 
 def import_tfm(
@@ -92,11 +122,16 @@ def import_tfm(
         raise UserError(f"{file}: {exc}") from None
     if kind == "jacked":
         return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir)
+    if kind == "ground":
+        return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir)
+    if kind == "rc":
+        return _import_rc(file, data, Path(out), signs, run_dir)
     return _import_square(file, data, Path(out), tuple(signs or RAW_SIGNS), run_dir)
 
 
-def _base_extra(file: Path, signs: Sequence[int], kind: str) -> dict[str, Any]:
+def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, Any] = SQUARE_SKETCH) -> dict[str, Any]:
     return {
+        "firmware_timing": dict(timing),
         "source": SOURCE,
         "source_file": str(file),
         "source_kind": kind,
@@ -121,8 +156,8 @@ def _import_jacked(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
     if x.size:
         last_cmd = int(round(float(np.median(x)) * 127))
     w = RunWriter.create(
-        out, "upside_down_sweep", run_dir=run_dir, counts_per_rev=COUNTS_PER_REV,
-        extra={**_base_extra(file, signs, "results_jacked"),
+        out, "upside_down_sweep", run_dir=run_dir, name=Path(file).stem, counts_per_rev=COUNTS_PER_REV,
+        extra={**_base_extra(file, signs, "results_jacked"), "mode": "upside_down",
                "steps_planned": int(run_cols.size),
                "notes": "Steady speeds per amplitude from `ws`; raw samples only for the last "
                         "amplitude run (t, x, m). Wheel loads were not recorded."},
@@ -160,36 +195,80 @@ def _import_jacked(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
 def _import_square(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
                    run_dir: Path | None) -> Path:
     d = np.asarray(data["data"]).astype(np.int64)
-    cmd, millis, counts = d[0], d[1], d[3:7]
-    if np.any(np.diff(millis) <= 0):
-        raise UserError(f"{file}: `data` row 2 (millis) is not increasing")
+    return _import_trace(file, out, run_dir, "step_response", d[0], d[1] / 1000.0, d[3:7], signs,
+                         _base_extra(file, signs, "square_wave"), "step_response",
+                         "Square-wave command on all four motors, wheels in the air. "
+                         "Time is Arduino millis()/1000 (irregular 17-45 ms sampling).")
+
+
+def _import_ground(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
+                   run_dir: Path | None) -> Path:
+    t = np.asarray(data["t"], dtype=float).ravel()
+    x = np.asarray(data["x"], dtype=float).ravel()
+    m = np.asarray(data["m"], dtype=float)
+    if m.shape != (4, t.size) or x.size != t.size:
+        raise UserError(f"{file}: `m` should be 4 x {t.size} like `t` and `x`, is {m.shape}")
+    gains = {k: np.asarray(data[k], dtype=float).tolist() for k in ("Ks", "fits", "Ts") if k in data}
+    extra = {**_base_extra(file, signs, "results_ground"), "mode": "ground", "fitted_gains": gains,
+             "fitted_gains_note": "2019 per-amplitude process-model fits: Ks wheel rev/s per unit duty, "
+                                  "fits percent (NaN where not run), Ts time constants (s)"}
+    return _import_trace(file, out, run_dir, "step_response", np.round(x * 127).astype(np.int64), t,
+                         np.round(m * COUNTS_PER_REV).astype(np.int64), signs, extra, "step_response",
+                         "Robot on the floor driving forward and back (square wave of the command on "
+                         "all four motors); raw log of the last square wave of results_ground_x.mat.")
+
+
+def data_signs(drive: np.ndarray, counts: np.ndarray) -> tuple[int, ...]:
+    """Per-wheel sign map read off a log: the sign of each wheel's speed against the command."""
+    dc = np.diff(counts, axis=1).astype(float)
+    corr = dc @ np.asarray(drive, dtype=float)[:-1]
+    if np.any(corr == 0):
+        raise UserError("cannot read the wheel signs off the data (a wheel never turned with the "
+                        "command): give --signs")
+    return tuple(int(v) for v in np.sign(corr))
+
+
+def _import_rc(file: Path, data: dict[str, Any], out: Path, signs: Sequence[int] | None,
+               run_dir: Path | None) -> Path:
+    d = np.asarray(data["data"], dtype=float)
+    millis, value, counts = d[0].astype(np.int64), d[1], d[2:6].astype(np.int64)
+    cmd = np.trunc(127 * value).astype(np.int64)  # the sketch: command = trunc(127 x value)
+    sgn = tuple(signs) if signs else data_signs(cmd, counts)
+    extra = {**_base_extra(file, sgn, "rc_log", RC_SKETCH),
+             "sign_map_source": "given" if signs else "read off the data (speed against command)"}
+    return _import_trace(file, out, run_dir, "random_duty", cmd, millis / 1000.0, counts, sgn, extra,
+                         "duty_hold",
+                         "Hand-driven (RC transmitter) command on all four motors, wheels in the air: "
+                         "each step holds one command level, not a square wave. Time is millis()/1000.")
+
+
+def _import_trace(file: Path, out: Path, run_dir: Path | None, procedure: str, cmd: np.ndarray,
+                  t: np.ndarray, counts: np.ndarray, signs: Sequence[int], extra: dict[str, Any],
+                  step_kind: str, notes: str) -> Path:
+    """A logged command trace (command -127..127, time s, counts 4 x N) as one step per
+    constant-command segment, raw samples with duty = command/127 and counts times the sign map."""
+    if np.any(np.diff(t) <= 0):
+        raise UserError(f"{file}: the time stamps are not increasing")
     sgn = np.asarray(signs, dtype=np.int64)
-    # steps: maximal runs of constant command
     edges = np.flatnonzero(np.diff(cmd) != 0) + 1
     starts = np.concatenate([[0], edges])
     ends = np.concatenate([edges, [cmd.size]])
-    w = RunWriter.create(
-        out, "step_response", run_dir=run_dir, counts_per_rev=COUNTS_PER_REV,
-        extra={**_base_extra(file, signs, "square_wave"),
-               "steps_planned": int(starts.size),
-               "notes": "Square-wave command on all four motors, wheels in the air. "
-                        "Time is Arduino millis()/1000 (irregular 17-45 ms sampling)."},
-    )
+    w = RunWriter.create(out, procedure, run_dir=run_dir, name=Path(file).stem, counts_per_rev=COUNTS_PER_REV,
+                         extra={"mode": "upside_down", **extra, "steps_planned": int(starts.size),
+                                "notes": notes})
     with w:
         w.event("import", source_file=str(file))
         for k, (a, b) in enumerate(zip(starts, ends)):
             duty = float(cmd[a]) / 127.0
-            w.event("step_start", t=millis[a] / 1000.0, step=k, duty=duty)
+            w.event("step_start", t=float(t[a]), step=k, duty=duty)
             for n in range(a, b):
-                row = {"step": k, "t": millis[n] / 1000.0, "seq": n,
-                       **{f"u{j + 1}": float(cmd[n]) / 127.0 for j in range(4)},
-                       **{f"enc{j + 1}": int(sgn[j] * counts[j, n]) for j in range(4)}}
-                w.sample(row)
-            w.event("step_end", t=millis[b - 1] / 1000.0, step=k)
+                w.sample({"step": k, "t": float(t[n]), "seq": n,
+                          **{f"u{j + 1}": float(cmd[n]) / 127.0 for j in range(4)},
+                          **{f"enc{j + 1}": int(sgn[j] * counts[j, n]) for j in range(4)}})
+            w.event("step_end", t=float(t[b - 1]), step=k)
             w.step_complete({
-                "step": k, "kind": "step_response", "command": int(cmd[a]), "duty": duty,
+                "step": k, "kind": step_kind, "command": int(cmd[a]), "duty": duty,
                 "voltage": duty * SUPPLY_V, **{f"u{j + 1}": duty for j in range(4)},
-                "t_start": millis[a] / 1000.0, "t_end": millis[b - 1] / 1000.0,
-                "n_samples": int(b - a),
+                "t_start": float(t[a]), "t_end": float(t[b - 1]), "n_samples": int(b - a),
             })
     return w.path

@@ -84,6 +84,8 @@ class SimBoard:
         b = self.spec.board
         self._max_rate = int(b.get("max_telemetry_hz", 1000))
         self._default_watchdog_us = int(round(float(b.get("default_watchdog_s", 0.5)) * 1e6))
+        enc = next(f for f in self.spec.message("TELEMETRY").fields if f.name == "encoder")
+        self._encoder_range = enc.raw_range
         self._boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -166,17 +168,32 @@ class SimBoard:
     def _physics_to(self, clock_us: int) -> None:
         f = self.world.faults
         if f.overcurrent_limit is None and f.undervoltage_limit is None:
-            self.plant.advance_to(clock_us * 1e-6, self.duties)
+            self.plant.advance_to(clock_us * 1e-6, self._wheel_duties())
             self.clock_us = clock_us
             return
         # the board's protection samples current and voltage every PROTECTION_PERIOD_US, so a
         # start-up current spike between two telemetry frames trips it as on the real board
         while self.clock_us < clock_us:
             t = min(clock_us, (self.clock_us // PROTECTION_PERIOD_US + 1) * PROTECTION_PERIOD_US)
-            self.plant.advance_to(t * 1e-6, self.duties)
+            self.plant.advance_to(t * 1e-6, self._wheel_duties())
             self.clock_us = t
             self._check_limits()
         self.clock_us = max(self.clock_us, clock_us)
+
+    def _wheel_duties(self) -> np.ndarray:
+        """The duty each wheel gets through the (possibly mis-)wired motor connectors."""
+        w = self.world.wiring
+        if w == (1, 2, 3, 4):
+            return self.duties
+        out = np.zeros(4)
+        for k, x in enumerate(w):
+            out[abs(x) - 1] = np.sign(x) * self.duties[k]
+        return out
+
+    @staticmethod
+    def _channels(values: np.ndarray, wiring: tuple[int, ...]) -> np.ndarray:
+        """Per-wheel `values` as the board's channels see them through `wiring`."""
+        return np.array([np.sign(x) * values[abs(x) - 1] for x in wiring])
 
     def _check_limits(self) -> None:
         """The board's protection (world faults.overcurrent_limit / undervoltage_limit; off by
@@ -360,8 +377,11 @@ class SimBoard:
         """Raw TELEMETRY fields for the current state, through the sensor models."""
         s = self.plant.state
         counts = self.sensors.encoder_counts(s.phi) - self.encoder_offset
-        counts = ((counts + 2**31) % 2**32) - 2**31  # int32 counters wrap
-        cur = np.clip(np.round(self.sensors.motor_current(s.motor_current) * 1000), -32768, 32767)
+        counts = self._channels(counts, self.world.encoder_wiring or self.world.wiring).astype(np.int64)
+        lo, hi = self._encoder_range
+        counts = ((counts - lo) % (hi - lo + 1)) + lo  # the counters wrap at the field's width
+        amps = self._channels(np.asarray(s.motor_current), self.world.wiring)
+        cur = np.clip(np.round(self.sensors.motor_current(amps) * 1000), -32768, 32767)
         duty = np.clip(np.round(self.duties * DUTY_FULL_SCALE), -DUTY_FULL_SCALE, DUTY_FULL_SCALE)
         return {
             "time": self._time_raw(),
@@ -442,4 +462,5 @@ class SimBoard:
                 "mode": self.plant.scenario.mode,
                 "payload": self.plant.scenario.payload,
                 "disconnected": self.disconnected,
+                "pose": [float(v) for v in self.plant.state.pose],  # what a person's tape would read
             }

@@ -11,8 +11,8 @@ simulator. URL parameters are documented in docs/simulator.md, e.g.
 Clocks: `fast` (default) moves simulated time only when the host waits in `read` for bytes
 that are not there yet: the board jumps to its next telemetry frame (running the watchdog
 and scheduled faults on the way), so a procedure of minutes runs in seconds and the host
-never loses a frame. With telemetry off, time follows the wall clock. `realtime` follows the wall
-clock (times `speed`).
+never loses a frame. With telemetry off, time follows the wall clock (times `speed`). `realtime`
+follows the wall clock (times `speed`).
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ class Serial(SerialBase):
             return True
         now = time.monotonic()
         if self._wall_anchor is not None:
-            b.advance_to(b.clock_us + int((now - self._wall_anchor) * 1e6))
+            b.advance_to(b.clock_us + int((now - self._wall_anchor) * self.world.speed * 1e6))
         self._wall_anchor = now
         return False
 

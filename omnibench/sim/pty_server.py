@@ -6,7 +6,8 @@ The host opens that path like any serial port (`Board.open("/dev/pts/5")`).
 
 Clocks: `realtime` (default; `speed` scales it) or `fast`: the board emits its next frame
 as soon as the host has read everything it sent (the server watches the slave's input
-queue), so simulated time runs as fast as the host reads.
+queue), so simulated time runs as fast as the host reads; while telemetry is off (a person at a
+prompt) it follows the wall clock times `speed`, so a test can pause for minutes of board time.
 
 The status file (JSON, replaced atomically) holds the board's duties, faults, boot id and
 last command whenever they change, and `"serving": false` with the motors stopped on exit,
@@ -104,9 +105,9 @@ class PtyServer:
     """The simulated board (and optionally its SCPI ammeter) on pseudo-terminals."""
 
     def __init__(self, world: World, *, status_file: str | Path | None = None, ammeter: bool = False,
-                 log: TextIO | None = None) -> None:
+                 log: TextIO | None = None, board=None) -> None:
         self.world = world
-        self.board = SimBoard(world)
+        self.board = board if board is not None else SimBoard(world)  # or a FirmwareBoard
         self.pty = _Pty()
         self.ammeter_pty = _Pty() if ammeter else None
         self.ammeter = SimAmmeter(self.board, seed=world.seed) if ammeter else None
@@ -159,8 +160,8 @@ class PtyServer:
                 if fast:
                     now = time.monotonic()
                     nxt = b.next_output_us()
-                    if nxt is None:
-                        b.advance_to(b.clock_us + int((now - wall_anchor) * 1e6))
+                    if nxt is None:  # telemetry off: time follows the wall clock (x speed)
+                        b.advance_to(b.clock_us + int((now - wall_anchor) * self.world.speed * 1e6))
                     elif p.unread() == 0 and not p.pending:
                         b.advance_to(nxt)
                     wall_anchor = now
@@ -228,9 +229,10 @@ class PtyServer:
             self.ammeter_pty.close()
 
 
-def run_server(world: World, *, status_file: str | None, ammeter: bool, out: TextIO, log: TextIO) -> int:
+def run_server(world: World, *, status_file: str | None, ammeter: bool, out: TextIO, log: TextIO,
+               board=None) -> int:
     """Serve until SIGINT/SIGTERM: print the device path(s) on `out`, notes on `log`."""
-    server = PtyServer(world, status_file=status_file, ammeter=ammeter, log=log)
+    server = PtyServer(world, status_file=status_file, ammeter=ammeter, log=log, board=board)
 
     def _stop(signum, frame) -> None:  # noqa: ARG001
         server.stop_event.set()
@@ -240,7 +242,8 @@ def run_server(world: World, *, status_file: str | None, ammeter: bool, out: Tex
     print(server.path, file=out, flush=True)
     if server.ammeter_pty is not None:
         print(server.ammeter_pty.path, file=out, flush=True)
-    print(f"omnibench sim: simulated Omnibot on {server.path} ({world.clock} clock, seed {world.seed})"
+    what = f"firmware {board.elf} on a simulated ATmega2560" if board is not None else "simulated Omnibot"
+    print(f"omnibench sim: {what} on {server.path} ({world.clock} clock, seed {world.seed})"
           + (f", ammeter on {server.ammeter_pty.path}" if server.ammeter_pty else "")
           + "; Ctrl-C stops it", file=log, flush=True)
     server.serve()

@@ -68,3 +68,46 @@ def spawn_server(tmp: Path, *args: str, lines: int = 1) -> Served:
                 line, buf = buf.split(b"\n", 1)
                 got.append(line.decode().strip())
     return Served(proc, got[0], status, got)
+
+
+class HostStalls:
+    """Inject host stalls into the bench runner's board adapter (for tests and benchmarks).
+
+    Patches `LinkBoard.set_duties` so that, with probability `p`, the host sleeps a random
+    0..`max_s` seconds before sending the command (telemetry of the previous command piles up
+    on the port) and again after it (telemetry of the new one piles up), as a slow disk, a
+    lazy import or a busy machine would. Use as a context manager; `stalls` lists the sleeps.
+    """
+
+    def __init__(self, max_s: float = 2.0, p: float = 1.0, seed: int = 0) -> None:
+        import random
+
+        self.max_s, self.p = max_s, p
+        self.rng = random.Random(seed)
+        self.stalls: list[float] = []
+
+    def _sleep(self) -> None:
+        if self.rng.random() < self.p:
+            d = self.rng.uniform(0.0, self.max_s)
+            self.stalls.append(d)
+            time.sleep(d)
+
+    def __enter__(self) -> "HostStalls":
+        from omnibench.bench.link_adapter import LinkBoard
+
+        self._orig = LinkBoard.set_duties
+        inject = self
+
+        def set_duties(board, duties):  # noqa: ANN001
+            inject._sleep()
+            t = inject._orig(board, duties)
+            inject._sleep()
+            return t
+
+        LinkBoard.set_duties = set_duties
+        return self
+
+    def __exit__(self, *exc) -> None:
+        from omnibench.bench.link_adapter import LinkBoard
+
+        LinkBoard.set_duties = self._orig

@@ -7,6 +7,8 @@ defaults are documented in docs/simulator.md.
 
 from __future__ import annotations
 
+import math
+
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -68,10 +70,16 @@ class World:
     dt: float = 1e-3                     #: physics step, s
     board_id: int = 0x0B0B0001           #: reported in HELLO
     firmware_version: tuple[int, int, int] = (1, 0, 0)
-    protocol: str = "omnibot-board-v1"   #: protocol description (name in protocols/ or path)
+    protocol: str = "omnibot-board-v2"   #: protocol description (name in protocols/ or path)
     baudrate: int = 115200               #: the board's UART speed; a host at another speed reads noise
     name: str | None = None              #: registry name, so `sim://ammeter?board=NAME` finds it
     plant: str = "model"                 #: "model" (omnibench.model) or "independent" (omnibench.worlds.independent)
+    #: mis-wiring: board motor channel k (FL FR RL RR order) drives wheel |wiring[k]| (1-based),
+    #: reversed when negative; its current sensor follows the motor
+    wiring: tuple[int, int, int, int] = (1, 2, 3, 4)
+    #: board encoder channel k reads wheel |encoder_wiring[k]|, counting backwards when negative
+    #: (None: the same as `wiring`, i.e. the encoder travels with its motor's connector)
+    encoder_wiring: tuple[int, int, int, int] | None = None
 
     def robot(self):  # -> omnibench.model.Robot
         """The Robot this world simulates (default Omnibot or `robot_file`)."""
@@ -89,9 +97,12 @@ class World:
 
 def _float(v: Any, what: str) -> float:
     try:
-        return float(v)
+        x = float(v)
     except (TypeError, ValueError):
         raise UserError(f"{what} must be a number, not {v!r}") from None
+    if not math.isfinite(x):
+        raise UserError(f"{what} must be a finite number, not {v!r}")
+    return x
 
 
 def _bool(v: Any, what: str) -> bool:
@@ -188,6 +199,11 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
         elif k == "effects":
             if not isinstance(v, Mapping) or not all(isinstance(p, Mapping) for p in v.values()):
                 raise UserError(f"{where}: [effects] must be tables {{effect name: {{param: value}}}}")
+            from omnibench.effects.library import effect_names
+
+            unknown = [n for n in v if n not in effect_names()]
+            if unknown:
+                raise UserError(f"{where}: unknown effect {unknown[0]!r}; known: {', '.join(effect_names())}")
             changes["effects"] = {n: {pk: _float(pv, f"{where} effects.{n}.{pk}") for pk, pv in p.items()}
                                   for n, p in v.items()}
         elif k == "sensors":
@@ -221,6 +237,15 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
             changes["plant"] = v
         elif k in ("protocol", "name"):
             changes[k] = str(v)
+        elif k in ("wiring", "encoder_wiring"):
+            vals = v if isinstance(v, (list, tuple)) else str(v).split(",")
+            try:
+                w = tuple(int(str(x).strip()) for x in vals)
+            except ValueError:
+                raise UserError(f"{where}: {k} needs four signed wheel numbers, e.g. 2,1,3,-4") from None
+            if len(w) != 4 or sorted(abs(x) for x in w) != [1, 2, 3, 4]:
+                raise UserError(f"{where}: {k} must name each wheel 1-4 once (negative: reversed), e.g. 2,1,3,-4")
+            changes[k] = w
         elif k == "baudrate":
             changes["baudrate"] = int(_float(v, f"{where} baudrate"))
         else:

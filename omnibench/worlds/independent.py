@@ -18,6 +18,9 @@ It shares no numerical shortcut with `omnibench.model` (the fit's simulator):
   decay of any exponent (`shape`: 2 Gaussian, 1 exponential), asymmetric Coulomb friction that
   scales with the axle load like b, winding heating with its thermal time constant, a battery
   resistance that may grow with current (`k_i`, 1/A);
+- command timing (command_latency, serial_command_latency, per_wheel_latency): each wheel
+  holds the command issued last before t - its latency, sampled at the middle of each step
+  (the model averages the delayed schedule over its step instead);
 - effects outside the library: `wheel_radius` (one wheel's rolling radius scaled), `bent_axle`
   (one wheel's friction varying once per revolution), `set_screw` (one wheel slips on its shaft
   above a torque: the encoder on the motor sees more speed than the wheel makes).
@@ -61,6 +64,7 @@ class _World:
     Sm: np.ndarray  # (4, 3)
     M: np.ndarray  # (B, 3, 3)
     e: dict  # effect parameter arrays
+    lag: np.ndarray  # (B, 4) s, each wheel's command latency (timing effects)
 
 
 def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
@@ -77,6 +81,7 @@ def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
              "screw_slip")
     e = {k: np.zeros(B) for k in names}
     e["da"], e["dbw"] = np.zeros((B, 4)), np.zeros((B, 4))
+    lag = np.zeros((B, 4))
     for b, sc in enumerate(scenarios):
         ef = {k: dict(v) for k, v in robot.effects.items()}
         ef.update({k: dict(v) for k, v in sc.effects.items()})
@@ -108,11 +113,31 @@ def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
         for j in range(4):
             e["da"][b, j] = _p(ef, "per_wheel_friction", f"da_{j + 1}")
             e["dbw"][b, j] = _p(ef, "per_wheel_friction", f"db_{j + 1}")
+        lag[b] = _latencies(ef, sc.command_order)
     M = np.zeros((B, 3, 3))
     M[:, 0, 0] = M[:, 1, 1] = mass
     M[:, 2, 2] = robot.I_z
     M += robot.I_w * np.einsum("bji,bjk->bik", Rm, Rm)
-    return _World(up, FN, mass, Rm, Sm, M, e)
+    return _World(up, FN, mass, Rm, Sm, M, e, lag)
+
+
+def _latencies(ef: Mapping[str, Mapping[str, float]], order: Sequence[int] | None) -> np.ndarray:
+    """Each wheel's command latency (4,), s: command_latency tau, plus serial_command_latency
+    tau + tau_packet x (the wheel's place in the send order), plus per_wheel_latency tau_j."""
+    order = list(order) if order is not None else [1, 2, 3, 4]
+    out = np.full(4, _p(ef, "command_latency", "tau"))
+    for j in range(4):
+        out[j] += _p(ef, "serial_command_latency", "tau") + _p(ef, "serial_command_latency", "tau_packet") * order.index(j + 1)
+        out[j] += _p(ef, "per_wheel_latency", f"tau_{j + 1}")
+    return out
+
+
+def _delayed(t_cmd: np.ndarray, U: np.ndarray, lag: np.ndarray, t: float) -> np.ndarray:
+    """Duties (B, 4) acting at time t: wheel j of trajectory b holds the command issued last
+    before t - lag[b, j] (zero-order hold sampled at t; 0 before the first)."""
+    k = np.searchsorted(t_cmd, t - lag, side="right") - 1  # (B, 4)
+    got = np.take_along_axis(U, np.maximum(k, 0)[:, None, :], axis=1)[:, 0, :]
+    return np.where(k >= 0, got, 0.0)
 
 
 class IndependentPhysics:
@@ -377,9 +402,11 @@ def simulate_batch(robots, scenarios, t_cmd, u_cmd, t_end: float, *, dt: float =
         else np.zeros((B, 4))  # noqa: E731
     u = cmd(0)
     recs = [_record(ph, u)]
+    lagged = bool(np.any(ph.w.lag))
     for n in range(n_steps):
         for _ in range(per):
-            ph.step(u)
+            # a latency: each wheel's held command sampled at the middle of the step, delayed
+            ph.step(_delayed(t_cmd, U, ph.w.lag, ph.t + 0.5 * ph.h) if lagged else u)
         u_next = cmd(min(n + 1, n_steps - 1))
         if (n + 1) % record_every == 0:
             recs.append(_record(ph, u_next))
@@ -396,6 +423,7 @@ class IndependentPlant:
         self.robot = robot
         self._scenario = scenario
         self.ph = IndependentPhysics(robot, [scenario])
+        self._issued: list[tuple[float, np.ndarray]] = []  # (board time, duties) as commanded
         self.state = self._state()
 
     @property
@@ -413,8 +441,14 @@ class IndependentPlant:
     def advance_to(self, t: float, duties: np.ndarray) -> None:
         """Integrate up to board time `t` (s) holding `duties`."""
         u = np.asarray(duties, dtype=float)[None]
+        lag = self.ph.w.lag
+        if np.any(lag):  # the board's commands, as issued, reach the wheels late
+            if not self._issued or not np.array_equal(self._issued[-1][1], u[0]):
+                self._issued.append((self.ph.t, u[0].copy()))
+            t_cmd = np.array([h[0] for h in self._issued])
+            U = np.array([h[1] for h in self._issued])[None]
         while self.ph.t + 0.5 * self.ph.h <= t:
-            self.ph.step(u)
+            self.ph.step(_delayed(t_cmd, U, lag, self.ph.t + 0.5 * self.ph.h) if np.any(lag) else u)
         self.state = self._state()
 
     def set_world(self, mode: str | None = None, payload: float | None = None,

@@ -40,10 +40,12 @@ class FakeBoard:
 
     def set_duties(self, duties):
         self.duties = np.asarray(duties, dtype=float)
+        return float(self.sim.state.t)  # applied now: the next sample is later
 
     def stop(self):
         self.stops += 1
         self.duties = np.zeros(4)
+        return float(self.sim.state.t)
 
     def keepalive(self):
         pass

@@ -23,7 +23,11 @@ def test_campaign_on_sim_writes_report(capsys, tmp_path):
               str(HERE / "procedures" / "campaign"), "--analysis", "fit,validate-energy", "--json"])
     except SystemExit as exc:  # pragma: no cover - only on failure
         raise AssertionError(capsys.readouterr().err) from exc
-    res = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    res = json.loads(captured.out)
+    # the terminal summary: fitted values with SE, the energy error, both reports
+    assert "== summary" in captured.err and "fitted (value ± SE, verdict):" in captured.err
+    assert "energy: predicted vs measured, mean |error|" in captured.err and "report.html" in captured.err
     assert set(res["procedures"]) == {"upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories"}
     for p in res["procedures"].values():
         assert read_run(p["run"]).status == "complete"
@@ -39,6 +43,9 @@ def test_campaign_on_sim_writes_report(capsys, tmp_path):
     for plot in res["plots"].values():
         assert Path(plot).is_file() and Path(plot).stat().st_size > 1000
     assert (out / "campaign.json").is_file()
+    assert "{'" not in report and "[{" not in report  # no raw Python structures
+    assert "error by procedure (NRMSE): sweep " in report and " %" in report
+    assert (out / "report.html").is_file()
 
 
 def test_campaign_refuses_a_missing_procedure_file_before_moving(capsys, tmp_path):
@@ -89,8 +96,10 @@ def test_interrupted_campaign_resumes_without_redoing_complete_runs_or_mixing_ca
     assert code == 2 and "already holds runs" in err and len(err.strip().splitlines()) == 1
     assert len(list((out / "runs").iterdir())) == 3
 
-    code, err = _campaign(capsys, out, "sim://?seed=8", "--resume")
+    code, err = _campaign(capsys, out, "sim://?seed=8&name=later", "--resume")
     assert code == 0, err
+    report = (out / "report.md").read_text()
+    assert "port: `sim://?seed=8&driver_fault_at=10`" in report  # the resumed run keeps its own port
     after = {read_run(d).procedure: d for d in (out / "runs").iterdir()}
     assert set(after) == set(runs) | {"energy_trajectories"} and len(after) == 4
     for p, data in kept.items():

@@ -1,4 +1,4 @@
-"""Regenerate tests/link/vectors.json: one hex frame per message of omnibot-board-v1.
+"""Regenerate tests/link/vectors.json: one hex frame per message of omnibot-board-v2.
 
 Run `python tests/link/make_vectors.py` only when the protocol changes on purpose; the
 committed file is what firmware authors and both codecs are checked against.
@@ -22,9 +22,9 @@ RAW = {
     "RESET_ENCODERS": {},
     "CLEAR_FAULTS": {},
     "ACK": {"cmd_id": 0x10, "cmd_seq": 258, "status": 0, "time": 1234567},
-    "HELLO": {"protocol_version": 1, "firmware_version": [1, 2, 3], "board_id": 0x0B0B0001,
+    "HELLO": {"protocol_version": 2, "firmware_version": [1, 2, 3], "board_id": 0x0B0B0001,
               "boot_id": 0xDEADBEEF, "counts_per_rev": 980, "max_telemetry_rate": 1000, "capabilities": 0b111},
-    "TELEMETRY": {"time": 4_000_000_000, "encoder": [0, -1, 2_000_000_000, -2_000_000_000],
+    "TELEMETRY": {"time": 4_000_000_000, "encoder": [0, -1, 32767, -32768],
                   "motor_current": [1500, -1500, 0, 32767], "battery_voltage": 24700,
                   "battery_current": -250, "faults": 0b1, "duty": [16384, -16384, 0, -32767]},
     "EVENT": {"code": 2, "arg": 512, "time": 500000},
@@ -35,7 +35,7 @@ RAW = {
 
 
 def build() -> list[dict]:
-    spec = load_protocol("omnibot-board-v1")
+    spec = load_protocol("omnibot-board-v2")
     codec = Codec(spec)
     out = []
     for seq, m in enumerate(spec.messages):
@@ -55,8 +55,8 @@ def build() -> list[dict]:
 
 if __name__ == "__main__":
     path = Path(__file__).with_name("vectors.json")
-    doc = {"protocol": "omnibot-board-v1", "crc": "CRC-16/CCITT-FALSE", "crc_check": "0x29B1",
-           "note": "wire = COBS(body + CRC16 little-endian) + 00; body = id u8, seq u16 LE, payload",
+    doc = {"protocol": "omnibot-board-v2", "crc": "CRC-32/ISO-HDLC", "crc_check": "0xCBF43926",
+           "note": "wire = COBS(body + CRC32 little-endian) + 00; body = id u8, seq u16 LE, payload",
            "vectors": build()}
     path.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"wrote {len(doc['vectors'])} vectors to {path}")

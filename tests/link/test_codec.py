@@ -16,18 +16,19 @@ from omnibench.link.spec import load_protocol
 from omnibench.sim.board import SimBoard
 
 VECTORS = json.loads(Path(__file__).with_name("vectors.json").read_text())["vectors"]
-SPEC = load_protocol("omnibot-board-v1")
+SPEC = load_protocol("omnibot-board-v2")
 CODEC = Codec(SPEC)
 
 
-def crc16_ccitt_false_bitwise(data: bytes) -> int:
-    """Reference CRC-16/CCITT-FALSE written from its definition (poly 0x1021, init 0xFFFF)."""
-    crc = 0xFFFF
+def crc32_iso_hdlc_bitwise(data: bytes) -> int:
+    """Reference CRC-32/ISO-HDLC written from its definition (poly 0x04C11DB7 reflected =
+    0xEDB88320, init and final XOR 0xFFFFFFFF)."""
+    crc = 0xFFFFFFFF
     for byte in data:
-        crc ^= byte << 8
+        crc ^= byte
         for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
+            crc = (crc >> 1) ^ 0xEDB88320 if crc & 1 else crc >> 1
+    return crc ^ 0xFFFFFFFF
 
 
 def cobs_decode_reference(enc: bytes) -> bytes:
@@ -44,10 +45,10 @@ def cobs_decode_reference(enc: bytes) -> bytes:
 
 
 def test_crc_variant_and_check_value() -> None:
-    assert SPEC.crc.name == "CRC-16/CCITT-FALSE"
-    assert SPEC.crc.check == 0x29B1
-    assert Crc(SPEC.crc).checksum(b"123456789") == 0x29B1
-    assert crc16_ccitt_false_bitwise(b"123456789") == 0x29B1
+    assert SPEC.crc.name == "CRC-32/ISO-HDLC" and SPEC.version == 2
+    assert SPEC.crc.check == 0xCBF43926
+    assert Crc(SPEC.crc).checksum(b"123456789") == 0xCBF43926
+    assert crc32_iso_hdlc_bitwise(b"123456789") == 0xCBF43926
 
 
 def test_vectors_cover_every_message() -> None:
@@ -59,9 +60,9 @@ def test_vector_is_independently_valid(v: dict) -> None:
     wire = bytes.fromhex(v["wire_hex"])
     assert wire[-1] == 0 and 0 not in wire[:-1]
     data = cobs_decode_reference(wire[:-1])
-    body, crc = data[:-2], int.from_bytes(data[-2:], "little")
+    body, crc = data[:-4], int.from_bytes(data[-4:], "little")
     assert body.hex() == v["body_hex"]
-    assert crc == crc16_ccitt_false_bitwise(body)
+    assert crc == crc32_iso_hdlc_bitwise(body)
     assert body[0] == v["id"] and int.from_bytes(body[1:3], "little") == v["seq"]
 
 
@@ -161,7 +162,7 @@ def test_frame_after_garbage_is_recovered(garbage: bytes, seq: int, with_delimit
 
 
 @settings(max_examples=200, deadline=None)
-@given(pos=st.integers(0, 46), flip=st.integers(1, 255))
+@given(pos=st.integers(0, 40), flip=st.integers(1, 255))
 def test_any_single_corrupted_byte_is_rejected(pos: int, flip: int) -> None:
     wire = bytearray(CODEC.frame_raw("TELEMETRY", 3, next(v for v in VECTORS if v["message"] == "TELEMETRY")["raw"]))
     wire[pos] ^= flip
@@ -196,9 +197,9 @@ def test_a_different_firmware_is_described_not_coded(tmp_path: Path) -> None:
         '{ name = "faults", type = "u8", flags = "faults", doc = "latched fault flags" },\n'
         '  { name = "temperature", type = "i16", scale = 0.01, unit = "degC" },')
     other = tmp_path / "other-fw.toml"
-    other.write_text(text.replace("version = 1\n", "version = 7\n", 1))
+    other.write_text(text.replace("version = 2\n", "version = 7\n", 1))
     spec = load_protocol(other)
-    assert spec.version == 7 and spec.message("TELEMETRY").payload_size == 43
+    assert spec.version == 7 and spec.message("TELEMETRY").payload_size == 35
     codec = Codec(spec)
     raw = dict(next(v for v in VECTORS if v["message"] == "TELEMETRY")["raw"], temperature=-1234)
     msg = codec.decode(decode_chunk(codec.frame_raw("TELEMETRY", 1, raw)[:-1], codec.crc))

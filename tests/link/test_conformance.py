@@ -78,7 +78,7 @@ class TestBoardConformance:
     def test_hello_identity(self, target) -> None:
         with Board.open(target.url) as b:
             h = b.hello
-            assert h.protocol_version == 1 and b.version_ok
+            assert h.protocol_version == 2 and b.version_ok
             assert h.counts_per_rev == 980
             assert h.boot_id != 0 and h.is_simulator
             assert "BATTERY_CURRENT" in h.capabilities

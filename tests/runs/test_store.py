@@ -121,3 +121,29 @@ def test_metadata_is_atomic(tmp_path):
 def test_not_a_run(tmp_path):
     with pytest.raises(UserError, match="not a run directory"):
         read_run(tmp_path)
+
+
+def test_run_ids_unique_and_analysis_keeps_same_id_runs_apart(tmp_path):
+    """Two runs started in the same second in two folders differ in id; two run folders that
+    share an id (copies, older runs) still stay two runs in the analysis."""
+    import shutil
+
+    from omnibench.analysis.observations import Observations
+
+    paths = []
+    for folder in ("a", "b"):
+        w = RunWriter.create(tmp_path / folder, "step_response", counts_per_rev=980,
+                             run_dir=tmp_path / folder / "step_response-20261123-061635")
+        with w:
+            for k in range(5):
+                w.sample({**_row(0, k), "enc1": (1 if folder == "a" else -1) * 10 * k})
+            w.step_complete({"step": 0, "duty": 0.5, "t_start": 0.0, "t_end": 0.04})
+        paths.append(w.path)
+    ids = [read_run(p).metadata["run_id"] for p in paths]
+    assert ids[0] != ids[1] and all(i.startswith("step_response-20261123-061635-") for i in ids)
+    # a copy keeps the id of its original: still two runs, each with its own samples
+    shutil.copytree(paths[0], tmp_path / "c" / paths[0].name)
+    obs = Observations.from_runs([paths[1], tmp_path / "c", paths[0]])
+    assert len(obs.run_ids) == 3 and len(set(obs.run_ids)) == 3
+    signs = sorted(np.sign(tr["phi1"].iloc[-1]) for tr in obs.traces.values())
+    assert signs == [-1, 1, 1]

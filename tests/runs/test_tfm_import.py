@@ -93,3 +93,49 @@ def test_cli_import_with_sign_option_and_bad_input(tmp_path):
     bad = subprocess.run(exe + ["import", "tfm", str(junk), "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def _agree(run, j):
+    """Sum over steps of duty sign x wheel j's angle change: > 0 when the wheel follows its duty."""
+    out = 0.0
+    for k in run.steps["step"]:
+        st = run.step_samples(int(k))
+        out += np.sign(st["u1"].iloc[0]) * (st[f"phi{j + 1}"].iloc[-1] - st[f"phi{j + 1}"].iloc[0])
+    return out
+
+
+def test_floor_runs_import_as_ground_step_responses_with_their_fitted_gains(tmp_path):
+    run = read_run(import_tfm(DATA / "results_ground_x.mat", tmp_path))
+    g = _mat("results_ground_x.mat")
+    assert run.procedure == "step_response" and run.metadata["mode"] == "ground"
+    assert len(run.samples) == g["t"].size == 143
+    np.testing.assert_allclose(run.samples["t"], g["t"].ravel())
+    np.testing.assert_allclose(run.samples["u2"], np.round(g["x"].ravel() * 127) / 127)
+    np.testing.assert_allclose(run.samples["phi3"], np.round(g["m"][2] * 980) * 2 * math.pi / 980)
+    assert all(_agree(run, j) > 0 for j in range(4))
+    ks = np.asarray(run.metadata["fitted_gains"]["Ks"], dtype=float)
+    np.testing.assert_array_equal(ks, g["Ks"])
+    ft = run.metadata["firmware_timing"]
+    assert ft["command_order"] == [1, 2, 3, 4] and ft["command_offset_s"] == 0.0
+    assert ft["packet_s"] == pytest.approx(4 * 10 / 9600)
+
+
+def test_rc_log_imports_as_random_duty_with_signs_read_off_the_data(tmp_path):
+    run = read_run(import_tfm(DATA / "inputs.mat", tmp_path))
+    d = _mat("inputs.mat")["data"]
+    assert run.procedure == "random_duty" and run.metadata["mode"] == "upside_down"
+    assert set(run.steps["kind"]) == {"duty_hold"}  # hand-held command levels, not a square wave
+    assert run.metadata["sign_map"] == [-1, 1, -1, 1]
+    assert "read off the data" in run.metadata["sign_map_source"]
+    np.testing.assert_allclose(run.samples["u4"], np.trunc(127 * d[1]) / 127)
+    np.testing.assert_allclose(run.samples["t"], d[0] / 1000.0)
+    assert all(_agree(run, j) > 0 for j in range(4))
+    ft = run.metadata["firmware_timing"]
+    assert ft["command_order"] == [1, 2, 4, 3]  # ardu.ino.ino: FL, FR, BR, BL
+    assert ft["command_offset_s"] == pytest.approx(-4 * 4 * 10 / 9600)  # sent before the encoder read
+    # the analysis reads it as a trace replayed whole, with its firmware timing
+    from omnibench.analysis.observations import Observations
+
+    obs = Observations.from_runs([run.path])
+    info = obs.runs[obs.run_ids[0]]
+    assert len(obs.step_response) == len(run.steps) and info["command_order"] == (1, 2, 4, 3)

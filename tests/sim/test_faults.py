@@ -137,13 +137,13 @@ def test_board_reset_detected_even_if_its_hello_is_lost() -> None:
 
 def test_version_mismatch_refuses_to_drive_motors() -> None:
     name = _name()
-    with pytest.raises(BoardError, match=r"v2.*v1.*motors not driven"):
-        Board.open(f"sim://?name={name}&protocol_version=2")
+    with pytest.raises(BoardError, match=r"v3.*v2.*motors not driven"):
+        Board.open(f"sim://?name={name}&protocol_version=3")
     sim = registry.get(name)
     assert {m[0] for m in sim.received} == {"HELLO_REQ"}
 
-    with Board.open(f"sim://?name={name}&protocol_version=2", strict=False) as b:
-        assert not b.version_ok and b.hello.protocol_version == 2
+    with Board.open(f"sim://?name={name}&protocol_version=3", strict=False) as b:
+        assert not b.version_ok and b.hello.protocol_version == 3
         with pytest.raises(BoardError, match="motors not driven"):
             b.set_duties([0.1] * 4)
     sim = registry.get(name)
@@ -173,12 +173,12 @@ def test_board_with_another_layout_is_recognised_as_another_version(tmp_path) ->
     from omnibench.link.spec import load_protocol
 
     text = load_protocol().path.read_text()
-    text = text.replace("version = 1\n", "version = 9\n", 1).replace(
+    text = text.replace("version = 2\n", "version = 9\n", 1).replace(
         '{ name = "capabilities", type = "u8", flags = "capabilities" },',
         '{ name = "capabilities", type = "u8", flags = "capabilities" },\n  { name = "serial", type = "u32" },')
     v9 = tmp_path / "omnibot-board-v9.toml"
     v9.write_text(text)
-    with pytest.raises(BoardError, match=r"v9.*this tool speaks v1.*motors not driven"):
+    with pytest.raises(BoardError, match=r"v9.*this tool speaks v2.*motors not driven"):
         Board.open(f"sim://?protocol={v9}", timeout=1.0)
 
 

@@ -81,3 +81,20 @@ def test_behind_the_serial_path_a_stuck_and_a_turning_wheel():
     assert a1[0] == a0[0]  # stuck: not one encoder count
     speed = (a1[1] - a0[1]) / dt
     assert speed == pytest.approx(upside_down_steady_speed(robot, 0.4, FN), abs=2 * 2 * math.pi / 980 / dt)
+
+
+def test_command_latency_is_a_pure_time_shift_per_wheel():
+    """Serialised commands (tau + tau_packet x place in the send order): each wheel's speed is
+    the undelayed run's, shifted by its own latency (to the half-step sampling of the hold)."""
+    robot = default_robot()
+    t_cmd, U = [0.0, 0.2], [[0.5] * 4, [-0.5] * 4]
+    plain = independent.simulate_batch(robot, Scenario(mode="upside_down"), t_cmd, U, 0.4)
+    lat = {"serial_command_latency": {"tau": 0.01, "tau_packet": 0.004}}
+    late = independent.simulate_batch(robot, Scenario(mode="upside_down", effects=lat, command_order=(2, 1, 4, 3)),
+                                      t_cmd, U, 0.4)
+    for j, place in enumerate((1, 0, 3, 2)):
+        d = int(round((0.01 + 0.004 * place) / 1e-3))
+        want, got = plain.signal(f"phi_dot{j + 1}")[0], late.signal(f"phi_dot{j + 1}")[0]
+        assert np.all(got[:d] == 0.0)
+        assert np.max(np.abs(got[d:] - want[:len(want) - d])) < 0.05 * np.max(np.abs(want))
+        assert np.max(np.abs(got[d + 3:] - want[:len(want) - d - 3])) > 0.1  # a wrong shift would not fit

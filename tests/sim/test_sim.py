@@ -164,7 +164,7 @@ def test_cli_board_info_json_and_bad_port() -> None:
     r = _cli("board", "info", "--port", "sim://?seed=2", "--json")
     assert r.returncode == 0, r.stderr
     info = json.loads(r.stdout)
-    assert info["protocol_version"] == 1 and info["compatible"] and info["counts_per_rev"] == 980
+    assert info["protocol_version"] == 2 and info["compatible"] and info["counts_per_rev"] == 980
     r = _cli("board", "info", "--port", "sim://?protocol_version=3", "--json")
     assert r.returncode == 3 and json.loads(r.stdout)["compatible"] is False and "v3" in r.stderr
     r = _cli("board", "info", "--port", "/dev/does-not-exist")

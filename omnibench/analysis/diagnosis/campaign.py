@@ -78,6 +78,10 @@ REVEALING: dict[str, CampaignSpec] = {
     # (test_diagnose: reported as ambiguous); the upside-down sweep separates them
     "floor_slope": CampaignSpec(("sweep", "forward")),
     "quiescent_current": CampaignSpec(("sweep", "energy")),
+    # command timing: reversals logged every 20 ± 5 ms (the 2019 Arduino loop)
+    **{name: CampaignSpec((), SquareWave(duties=(0.5, -0.5), half_period=0.25, duration=4.0, sample_dt=0.02,
+                                         jitter=0.005))
+       for name in ("command_latency", "serial_command_latency", "per_wheel_latency")},
 }
 
 #: Campaigns for clean-world (no undeclared effect) checks: together they exercise every candidate.

@@ -38,7 +38,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from omnibench.analysis.diagnosis import engine, structure
+from omnibench.analysis.diagnosis import core_params, engine, structure, transient
 from omnibench.analysis.observations import Observations
 from omnibench.effects.library import EFFECTS, Effect
 from omnibench.errors import UserError
@@ -128,9 +128,12 @@ class Diagnosis:
 
         sel = []
         for c in self.selected:
-            eff = EFFECTS[c.name]
+            eff = _spec(c.name)
             units = {p.name: p.unit for p in eff.term.params}
-            sel.append({"effect": c.name, "title": eff.term.title,
+            from omnibench.analysis.diagnosis.timing import wheel_order_note
+
+            sel.append({"effect": c.name, "title": eff.term.title, "kind": _kind(c.name),
+                        "note": wheel_order_note(c.name, c.values, c.se) or None,
                         "parameters": {p: {"value": f(c.values[p]), "se": f(c.se[p]), "unit": units[p.split(".")[-1]]}
                                        for p in c.values},
                         "evidence": {**c.evidence(),
@@ -165,12 +168,20 @@ class Diagnosis:
             L.append("Added:")
             for c in self.selected:
                 vals = ", ".join(f"{p.split('.')[-1]} = {c.values[p]:.4g} ± {c.se[p]:.2g}" for p in c.values)
-                L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
+                if core_params.is_core(c.name):
+                    L.append(f"  + {core_params.describe(c.name, c.values[c.name], c.se[c.name], self.declared)}"
+                             f" (final model: {self.final_fit.values.get(c.name, float('nan')):.4g})")
+                else:
+                    L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
                 if c.form:
                     alt = ", ".join(f"{k} AIC +{v:.1f}" for k, v in c.form_margin.items())
                     L.append(f"    form: {c.form}" + (f" (the data chose it over: {alt})" if alt else ""))
                 if c.partner:
                     L.append(f"    added together with {c.partner}: neither alone removes the structure")
+                from omnibench.analysis.diagnosis.timing import wheel_order_note
+
+                if wheel_order_note(c.name, c.values, c.se):
+                    L.append(f"    {wheel_order_note(c.name, c.values, c.se)}")
                 L.append(f"    evidence: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e}; AIC -{c.aic_drop:.1f}; "
                          f"held-out weighted error -{c.cv_gain:.1f}; structure {c.structure_before:.0f} -> {c.structure_after:.0f}")
                 if c.name in self.exposed_by:
@@ -202,6 +213,15 @@ class Diagnosis:
         return "\n".join(L)
 
 
+def _spec(name: str) -> Any:
+    """A library effect, or a core parameter offered for re-estimation (core_params.py)."""
+    return core_params.get(name) if core_params.is_core(name) else EFFECTS[name]
+
+
+def _kind(name: str) -> str:
+    return "core parameter re-estimated" if core_params.is_core(name) else "library effect"
+
+
 def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     return {p: {"nrmse": (v["nrmse"] if math.isfinite(v["nrmse"]) else None), "signals": v["signals"]} for p, v in t.items()}
 
@@ -209,7 +229,9 @@ def _err_json(t: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
 def _structure_of(problem: engine.Problem, fit: engine.ModelFit) -> tuple[list[structure.Finding], int]:
     r = fit.residual(problem)
     z = r * fit.weights(problem)
-    return structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    found, n = structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
+    extra = transient.findings(problem.table, r, z, problem.used, problem.group)  # command timing's signature
+    return found + extra, n + len(extra)
 
 
 def _score(findings: Sequence[structure.Finding], n_tests: int) -> float:
@@ -303,16 +325,16 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         return ("makes the held-out error worse beyond its noise in " + ", ".join(bad)) if bad else ""
 
     for rnd in range(1, max_effects + 1):
-        if not pool:
+        if not pool and not core_params.candidates(problem, current):
             break
         say(f"round {rnd}: screening {len(pool)} candidate effects")
-        scr = _screen(problem, current, pool)
-        m = len(pool)
+        scr = _screen(problem, current, pool) if pool else None
+        m = len(pool) + len(core_params.candidates(problem, current))
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
         tried: list[Candidate] = []
         passing: list[Candidate] = []
-        best_ratio = max(scr.approx_lr[e.name] / thr[e.name] for e in pool)
+        best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
@@ -341,6 +363,11 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                     c.reason = ("not testable with these data (what it would change, a change of the "
                                 f"fitted parameters changes alike; shows in {', '.join(e.procedures)})")
             tried.append(c)
+        # a declared parameter the data say is wrong competes on the same evidence (core_params.py)
+        core_pass, core_tried = core_params.round_candidates(
+            problem, current, rnd, assess=lambda c, e, cf: evaluate(c, [e], cf, alpha / m), make=Candidate, say=say)
+        passing += core_pass
+        tried += core_tried
         passing.sort(key=lambda c: -c.aic_drop)
         adequate = [c for c in passing if not c.remaining]
         added: list[Candidate] = []
@@ -349,8 +376,8 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         if not added:
             # no single candidate both earns its place and removes the structure it acts on:
             # two effects at once, among the best fitted ones
-            pair = _best_pair(problem, current, [c for c in tried if c.fitted and c.aic_drop > 0], pool, evaluate,
-                              alpha, m, say, rnd)
+            leads = [c for c in tried if c.fitted and c.aic_drop > 0 and not core_params.is_core(c.name)]
+            pair = _best_pair(problem, current, leads, pool, evaluate, alpha, m, say, rnd)
             if pair:
                 added = _polished(pair, problem, say, rnd, veto)
         for c in adequate:
@@ -373,7 +400,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             diff = best.aic_drop - c.aic_drop
             if diff < AMBIGUOUS and not c.remaining:
                 ambiguous.append({"chosen": best.name, "alternative": c.name, "aic_difference": float(diff),
-                                  "experiment": separating_experiment(EFFECTS[best.name], EFFECTS[c.name])})
+                                  "experiment": separating_experiment(_spec(best.name), _spec(c.name))})
                 c.reason = f"fits almost as well as {best.name} (AIC difference {diff:.1f}): not separable with these data"
             elif not c.remaining:
                 c.reason = f"significant, but {best.name} explains the data better (AIC difference {diff:.1f})"
@@ -413,6 +440,7 @@ def _at_bound(effect: Effect, values: Mapping[str, float]) -> str:
     specs = {p.name: p for p in effect.term.params}
     for full, v in values.items():
         name, _, par = full.partition(".")
+        par = par or name  # a core parameter (core_params.py) is its own only parameter
         if name != effect.name:
             continue
         spec = specs[par]
@@ -527,7 +555,7 @@ def _polished(cands: list[Candidate], problem: engine.Problem, say: Callable[[st
     pol = engine.fit_model(problem, c0.fit.robot, c0.fit.free, max_nfev=POLISH_NFEV, passes=3)
     fit = pol if pol.deviance <= c0.fit.deviance else c0.fit
     for c in cands:
-        bound = _at_bound(EFFECTS[c.name], {p: fit.values[p] for p in c.values})
+        bound = _at_bound(_spec(c.name), {p: fit.values[p] for p in c.values})
         if bound:
             c.reason = (f"its final fit runs to the edge of the physical range ({bound}): it stands in for "
                         "something else rather than measuring itself")

@@ -1,0 +1,160 @@
+"""Fisher information of candidate steps and of the data already taken, in the fit's terms.
+
+Each candidate is turned into the observation rows its runs would produce (the same tables
+the fit reads), predicted through the fit's own `Predictor` at the current parameter values,
+and differentiated by the fit's own forward differences (`fitting._Problem`): one source of
+truth for what an observation depends on. With J_k the weighted Jacobian of candidate k's
+entries (scaled parameters x = theta / scale), its information is M_k = J_k^T J_k / s2_g,
+where s2_g is the noise scale the fit found for that observation group (chi^2/dof, with its
+correlation inflation), so the predicted SE is the one the fit will report.
+
+Expected noise of an entry (before any data of its group, s2_g = 1): steady speed and drive
+speeds from the straight-line fit of encoder angles with the quantisation floor (the
+estimator's own floor), motor current 0.01 A per sample averaged, tape 2 mm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from omnibench.analysis.design.space import Candidate
+from omnibench.analysis.fitting import MIN_SWEEP_SPEED_WIDTHS, FitResult, _Problem, param_scale
+from omnibench.analysis.observations import (
+    DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
+)
+from omnibench.analysis.predictor import Predictor
+from omnibench.model.context import GRAVITY
+
+TELEMETRY_HZ = 100.0
+CURRENT_NOISE = 0.01  # A per telemetry sample (the simulated board; a real board's is read from its data)
+#: Prior standard deviation of every parameter before any data, in units of its scale (100 %).
+PRIOR_SD = 1.0
+
+
+def slope_se(duration: float, floor: float, rate: float = TELEMETRY_HZ) -> float:
+    """SE (rad/s) of a speed from a straight line fitted to `duration` s of angles at `rate` Hz
+    whose scatter is the quantisation floor (rad): floor / sqrt(sum (t - tbar)^2)."""
+    n = max(int(round(duration * rate)), 3)
+    t = np.arange(n) / rate
+    return floor / math.sqrt(float(np.sum((t - t.mean()) ** 2)))
+
+
+def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
+    floor = quantisation_se(robot.counts_per_rev)
+    w_se = slope_se(STEADY_AVERAGE, floor)
+    i_se = CURRENT_NOISE / math.sqrt(STEADY_AVERAGE * TELEMETRY_HZ)
+    sweep, forward, lateral = [], [], []
+    for k, c in enumerate(cands):
+        rid = f"candidate-{k}"
+        for s, u in enumerate(c.duties(robot)):
+            if c.procedure == "sweep":
+                for j in range(4):
+                    m = float(c.world.wheel_mass[j])
+                    sweep.append({"run": rid, "step": s, "wheel": j + 1, "u": u[j], "direction": float(np.sign(u[j])),
+                                  "wheel_mass": m, "F_N": m * GRAVITY, "omega": 1.0, "omega_se": w_se,
+                                  "current": 0.0 if current else np.nan, "current_se": i_se if current else np.nan,
+                                  "n": 30, "steady": True, "time": np.nan})
+                continue
+            a, b = drive_window(c.duration)
+            ws = slope_se(b - a, floor)
+            row = {"run": rid, "step": s, **{f"u{j + 1}": u[j] for j in range(4)}, "duration": c.duration,
+                   "t_total": c.duration + c.settle, "payload": c.world.payload, "heading": c.heading,
+                   "measured_forward": 0.0, "measured_left": 0.0 if c.procedure == "lateral" else np.nan,
+                   "measured_se": DEFAULT_TAPE_SE, **{f"w{j}": 1.0 for j in range(1, 5)},
+                   **{f"w_se{j}": ws for j in range(1, 5)}, "w_t0": a, "w_t1": b, "time": np.nan}
+            (forward if c.procedure == "forward" else lateral).append(row)
+    return Observations(sweep=pd.DataFrame(sweep, columns=SWEEP_COLUMNS),
+                        forward=pd.DataFrame(forward, columns=RUN_COLUMNS),
+                        lateral=pd.DataFrame(lateral, columns=RUN_COLUMNS))
+
+
+@dataclass
+class CandidateInformation:
+    """Per-candidate information matrices (scaled parameters) and the scale used."""
+
+    names: list[str]
+    scale: np.ndarray
+    info: np.ndarray  # (K, n, n)
+    usable: np.ndarray  # (K,) bool: gives the fit any usable observation
+
+
+def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
+                          group_s2: Mapping[str, float] | None = None,
+                          effects: Mapping[str, Any] | None = None) -> CandidateInformation:
+    """Information each candidate adds about `names` at `robot`'s parameter values."""
+    names = list(names)
+    scale = np.array([param_scale(robot, p) for p in names])
+    K, n = len(cands), len(names)
+    info = np.zeros((K, n, n))
+    usable = np.zeros(K, dtype=bool)
+    if not K:
+        return CandidateInformation(names, scale, info, usable)
+    obs = _rows(cands, robot, current)
+    pred = Predictor(obs, [p for p in ("sweep", "forward", "lateral") if len(obs.table(p))])
+    f0 = pred.predict([robot])[0]
+    t = pred.table
+    sweep_speed = (t["procedure"] == "sweep").to_numpy() & (t["signal"] == "omega").to_numpy()
+    used = np.isfinite(f0) & np.isfinite(pred.sigma) & (pred.sigma > 0)
+    # a sweep level too slow for the fit (stuck, inside the regularised sign) informs nothing
+    slow = np.zeros(len(t), dtype=bool)
+    for (run, step), idx in t.groupby(["run", "step"]).groups.items():
+        ix = np.asarray(list(idx))
+        if t.loc[ix[0], "procedure"] == "sweep":
+            sp = np.abs(f0[ix][sweep_speed[ix]])
+            if sp.size and sp.min() < MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi:
+                slow[ix] = True
+    used &= ~slow
+    s2 = np.ones(len(t))
+    groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
+    for g, v in (group_s2 or {}).items():
+        if v and math.isfinite(v) and v > 0:
+            s2[groups == g] = v
+    pred.measured = f0.copy()
+    prob = _Problem(robot, pred, names, used, pred.sigma)
+    prob.scale = scale
+    J = prob.jacobian(np.array([float(_value(robot, p)) for p in names]) / scale)
+    rows = np.flatnonzero(used)
+    cand_of = np.array([int(str(r).split("-")[1]) for r in t["run"].to_numpy()[rows]])
+    Jw = J / np.sqrt(s2[rows])[:, None]
+    for k in range(K):
+        m = cand_of == k
+        if m.any():
+            usable[k] = True
+            info[k] = Jw[m].T @ Jw[m]
+    return CandidateInformation(names, scale, info, usable)
+
+
+def _value(robot: Any, name: str) -> float:
+    from omnibench.analysis.fitting import param_value
+
+    return param_value(robot, name)
+
+
+def prior_information(res: FitResult | None, names: Sequence[str], scale: np.ndarray,
+                      obs: Observations | None = None) -> np.ndarray:
+    """Information already in hand (scaled) plus a weak prior (SD = PRIOR_SD scales) on every
+    parameter. The data's information is J^T J / s2_g of the fit's own observations over *all*
+    `names` at the fitted values (not the inverse of the fit's covariance: that one is conditional
+    on the parameters the fit held fixed, and would count their data twice)."""
+    n = len(names)
+    M = np.eye(n) / PRIOR_SD ** 2
+    if res is None or obs is None or not len(res.residuals):
+        return M
+    pred = Predictor(obs, res.procedures)
+    r = res.residuals
+    if len(r) != len(pred):
+        return M
+    used = r["used"].to_numpy(bool) & np.isfinite(r["sigma"].to_numpy(float))
+    sigma = r["sigma"].to_numpy(float)
+    groups = (r["procedure"].astype(str) + "/" + r["signal"].astype(str)).to_numpy()
+    s2 = np.array([res.group_s2.get(g, 1.0) or 1.0 for g in groups])
+    prob = _Problem(res.robot, pred, list(names), used, sigma)
+    prob.scale = scale
+    J = prob.jacobian(np.array([float(_value(res.robot, p)) for p in names]) / scale)
+    Jw = J / np.sqrt(s2[used])[:, None]
+    return M + Jw.T @ Jw

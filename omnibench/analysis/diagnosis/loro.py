@@ -1,0 +1,118 @@
+"""Held-out runs for diagnose (`--loro`): the leave-one-run-out error of the declared model and
+after each addition, and every addition that makes some run worse reported as a trade-off.
+
+Stage k is the declared model plus the first k additions (library effects and core-parameter
+re-estimates, in the order diagnose accepted them). Each stage is refitted with every run but
+one (analysis/heldout_runs.py: a, b on the sweep, the rest on the traces) and predicts that
+run. An addition whose stage predicts some run worse than the declared model by more than
+TOLERANCE (relative; compared with the declared model, as diagnose's own held-out check, so
+small losses cannot pile up) is a trade-off: reported with the runs it costs and what it gains,
+and it and every later addition are left out of the model `--out` writes (`accepted`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from omnibench.analysis.heldout_runs import PhysicsModel, RunError, leave_one_run_out
+
+TOLERANCE = 0.02  # relative change of a run's held-out NRMSE treated as noise
+
+
+@dataclass
+class HeldOutRuns:
+    """Per stage label (declared, + effect, ...): the held-out error per run; trade-offs."""
+
+    stages: list[str]
+    errors: list[RunError]
+    tradeoffs: list[dict[str, Any]] = field(default_factory=list)
+    accepted: int = 0  # additions before the first trade-off
+
+    @property
+    def additions(self) -> list[str]:
+        """The additions in the order of the stages."""
+        return [label.lstrip("+ ").split(" + ")[-1] for label in self.stages[1:]]
+
+    def text(self) -> str:
+        from omnibench.analysis.heldout_runs import table
+
+        lines = ["Leave-one-run-out NRMSE (each run predicted by the model refitted to the other runs):",
+                 table(self.errors)]
+        for t in self.tradeoffs:
+            worse = ", ".join(f"{r} {100 * a:.2f} % -> {100 * b:.2f} %" for r, (a, b) in t["worse"].items())
+            better = ", ".join(f"{r} {100 * a:.2f} % -> {100 * b:.2f} %" for r, (a, b) in t["better"].items())
+            lines.append(f"trade-off: {t['addition']} makes {worse} worse"
+                         + (f" (while {better} improve)" if better else ""))
+        if not self.tradeoffs:
+            lines.append(f"no addition makes any run's held-out error worse than the declared model's "
+                         f"(beyond {100 * TOLERANCE:.0f} %)")
+        else:
+            kept = ", ".join(self.additions[:self.accepted]) or "nothing"
+            lines.append(f"accepted on held-out runs: {kept} (trade-offs are reported, not added to the written model)")
+        return "\n".join(lines)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stages": self.stages, "tolerance": TOLERANCE, "tradeoffs": self.tradeoffs,
+                "accepted": self.additions[:self.accepted],
+                "runs": [{"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in self.errors]}
+
+
+def stage_models(diag: Any) -> dict[str, PhysicsModel]:
+    """The declared model and each cumulative addition, with the parameters refitted per fold."""
+    from omnibench.analysis.diagnosis.core_params import is_core
+
+    final = diag.final_fit.robot
+    base_free = [p for p in diag.base_fit.free if "." not in p]
+    models = {"declared": PhysicsModel(diag.declared, free=base_free or None)}
+    effects: dict[str, dict[str, float]] = {}
+    free = list(base_free)
+    robot = diag.declared
+    label = "declared"
+    for c in diag.selected:
+        if is_core(c.name):
+            free.append(c.name)
+            robot = robot.replace(**{c.name: float(getattr(final, c.name))})
+        else:
+            effects[c.name] = dict(final.effects.get(c.name, {}))
+            free += [p for p in diag.final_fit.free if p.startswith(c.name + ".")]
+            robot = robot.replace(effects={**diag.declared.effects, **effects})
+        label = f"{label} + {c.name}" if label == "declared" else f"+ {c.name}"
+        models[label] = PhysicsModel(robot, free=list(free))
+    return models
+
+
+def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None = None) -> HeldOutRuns:
+    """Leave-one-run-out errors of every stage of `diag` on `obs` (module docstring)."""
+    models = stage_models(diag)
+    errors = leave_one_run_out(models, obs, baselines=True, progress=progress)
+    labels = list(models)
+    trade = []
+    accepted = len(labels) - 1
+    for k, (prev, cur) in enumerate(zip(labels, labels[1:])):
+        worse, better = {}, {}
+        for e in errors:
+            a, b = e.nrmse.get(labels[0]), e.nrmse.get(cur)
+            if a is None or b is None:
+                continue
+            if b > (1 + TOLERANCE) * a:
+                worse[e.run] = (a, b)
+            elif b < (1 - TOLERANCE) * a:
+                better[e.run] = (a, b)
+        if worse:
+            trade.append({"addition": cur.lstrip("+ ").split(" + ")[-1], "worse": worse, "better": better})
+            accepted = min(accepted, k)
+    return HeldOutRuns(labels, errors, trade, accepted)
+
+
+def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
+    """`diag` without the additions from the first trade-off on: its accepted stage refitted to
+    every run (for `--out`)."""
+    from dataclasses import replace
+
+    from omnibench.analysis.heldout_runs import fit_physics
+
+    if held.accepted >= len(diag.selected):
+        return diag
+    model = stage_models(diag)[held.stages[held.accepted]]
+    return replace(diag, selected=diag.selected[:held.accepted], extended=fit_physics(model, obs))

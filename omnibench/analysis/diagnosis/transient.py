@@ -1,0 +1,83 @@
+"""Residual structure right after a change of duty, signed by the change: the signature of
+command timing (and of a wrong inertia).
+
+A latency makes the measured speed lag the model after every change of duty: the residual is
+negative after a step up and positive after a step down, so binned by time since the change
+(structure.py) it cancels. Here the first SAMPLES speed samples of each wheel after each of its
+duty changes are multiplied by the sign of that change, and the signed residual is tested in
+cells of wheel x sample index (binned means, F test, as structure.py does): a latency shows as
+a signed residual in the first samples, growing by wheel when the wheels are served one after
+another.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from omnibench.analysis.diagnosis.structure import Finding
+
+SAMPLES = 2  # speed samples after a duty change
+VARIABLE = "first samples after a duty change x its sign (per wheel)"
+
+
+def change_signs(t) -> tuple[np.ndarray, np.ndarray]:
+    """For step-response entries: sign of their wheel's last duty change (+1 up, -1 down, 0 none)
+    and the entry's sample index since that change (0 = the interval starting at it)."""
+    out = np.zeros(len(t))
+    since = np.full(len(t), -1)
+    sr = t["procedure"].to_numpy() == "step_response"
+    if not sr.any():
+        return out, since
+    for _, idx in t[sr].groupby(["run", "wheel"]).groups.items():
+        idx = np.asarray(list(idx))
+        tt = t.loc[idx, "time"].to_numpy(float)
+        uu = t.loc[idx, "u"].to_numpy(float)
+        order = np.argsort(tt, kind="stable")
+        sign, prev, n = 0.0, np.nan, -1
+        for k in order:
+            if np.isfinite(prev) and uu[k] != prev:
+                sign, n = float(np.sign(uu[k] - prev)), 0
+            elif n >= 0:
+                n += 1
+            prev = uu[k]
+            out[idx[k]] = sign
+            since[idx[k]] = n
+    return out, since
+
+
+def findings(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group: np.ndarray) -> list[Finding]:
+    """One finding per step-response group: signed z of the first SAMPLES samples after each
+    duty change, binned by wheel x sample index."""
+    if not (table["procedure"].to_numpy() == "step_response").any():
+        return []
+    sign, since = change_signs(table)
+    wheel = table["wheel"].to_numpy(dtype=float)
+    out = []
+    for g in sorted({x for x in group[used] if str(x).startswith("step_response/")}):
+        m = used & (group == g) & np.isfinite(z) & (since >= 0) & (since < SAMPLES) & (sign != 0)
+        if m.sum() < 4 * SAMPLES * 3:
+            continue
+        zs, rs = z[m] * sign[m], residual[m] * sign[m]
+        wv = wheel[m]
+        keys = wv * 10 + since[m]
+        cells = np.unique(keys)
+        means = np.array([zs[keys == c].mean() for c in cells])
+        counts = np.array([np.sum(keys == c) for c in cells])
+        within = sum(float(np.sum((zs[keys == c] - mu) ** 2)) for c, mu in zip(cells, means))
+        dof_w = max(int(counts.sum()) - len(cells), 1)
+        s2 = max(within / dof_w, 1e-12)
+        zb = means / np.sqrt(s2 / counts)
+        T = float(np.sum(zb ** 2))
+        p = float(stats.f.sf(T / len(cells), len(cells), dof_w))
+        where = []
+        for k in np.argsort(-np.abs(zb))[:4]:
+            if abs(zb[k]) < 3.0:
+                continue
+            sel = keys == cells[k]
+            where.append({"range": [float(cells[k] % 10), float(cells[k] % 10)],
+                          "variable_unit": f"(0 = first interval), wheel {int(cells[k] // 10)}",
+                          "unit": str(table["unit"].to_numpy()[m][0]), "mean": float(rs[sel].mean()),
+                          "z": float(zb[k]), "n": int(sel.sum()), "wheel": int(cells[k] // 10)})
+        out.append(Finding(str(g), VARIABLE, "binned means", T, p, int(m.sum()), where))
+    return out

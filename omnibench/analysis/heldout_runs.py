@@ -1,0 +1,147 @@
+"""Held-out means held-out runs: leave-one-run-out errors of the physics model and of the
+black-box baselines, trained on the same runs.
+
+For each run R of the runs given: every model is fitted to the *other* runs (wheels in the air:
+the sweep and the step-response / random-duty traces), then predicts R, and the error is R's
+wheel-speed NRMSE (its steady-speed NRMSE for a sweep). Runs on the floor are a procedure of
+their own: they are predicted by the models fitted on every in-air run (leave-one-procedure-out).
+
+The physics model refits `free` (default: a, b, I_w and the fitted parameters of every effect
+the robot declares) with `fitting.fit`; the black boxes (analysis/baseline.py) are fitted to the
+training traces' wheel speeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from omnibench.analysis.observations import Observations
+
+PHYSICS_FREE = ("a", "b", "I_w")
+SWEEP_FREE = ("a", "b", "c")  # what the sweep measures (paper III.i)
+
+
+def physics_free(robot: Any) -> list[str]:
+    """Parameters refitted per fold: a, b, I_w and every declared effect's fitted parameters."""
+    from omnibench.effects import EFFECTS
+
+    return list(PHYSICS_FREE) + [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
+
+
+@dataclass
+class PhysicsModel:
+    """A physics model as LORO refits it: the start robot, the parameters refitted per fold
+    (default `physics_free`), and whether each training run's supply is re-estimated
+    (sessions.py: a gain that differs between measurement days)."""
+
+    robot: Any
+    free: Sequence[str] | None = None
+    run_supplies: bool = False
+    #: the paper's order: friction (a, b) from the sweep alone, then the rest from the traces
+    staged: bool = True
+
+
+@dataclass
+class RunError:
+    """One held-out run: NRMSE per model (label -> value) and the signal it is measured on."""
+
+    run: str
+    kind: str  # "in-air trace", "sweep", "floor trace"
+    signal: str
+    nrmse: dict[str, float] = field(default_factory=dict)
+
+
+def _run_kind(obs: Observations, run: str) -> str:
+    if (obs.sweep["run"] == run).any():
+        return "sweep"
+    return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
+
+
+def _run_error(robot: Any, obs: Observations, run: str) -> float:
+    from omnibench.analysis.predict import predict_runs
+
+    pred = predict_runs(robot, obs.select(runs=[run]))[0]
+    key = "steady_speed" if _run_kind(obs, run) == "sweep" else "wheel_speed"
+    return float(pred.nrmse.get(key, float("nan")))
+
+
+def _sweep_measures(name: str) -> bool:
+    """Friction the sweep measures (a, b, c). Effects' parameters are fitted on the traces: a
+    one-direction sweep cannot see direction asymmetry, nor time or transients."""
+    return name in SWEEP_FREE
+
+
+def fit_physics(model: PhysicsModel, train: Observations, max_nfev: int = 30) -> Any:
+    """The model's robot fitted to `train` (sweep and traces in the air)."""
+    from omnibench.analysis.fitting import fit
+    from omnibench.analysis.sessions import fit_with_run_supplies
+
+    procs = [p for p in ("sweep", "step_response") if len(train.table(p))]
+    free = list(model.free or physics_free(model.robot))
+    robot = model.robot
+    if model.staged and len(train.sweep) and len(train.step_response):
+        sweep_free = [p for p in free if _sweep_measures(p)]
+        if sweep_free:
+            robot = fit(robot, train, sweep_free, procedures=["sweep"], max_nfev=max_nfev).robot
+        free, procs = [p for p in free if p not in SWEEP_FREE], ["step_response"]
+    if not free:
+        return robot
+    if model.run_supplies and procs == ["step_response"]:
+        return fit_with_run_supplies(robot, train, free, procs, max_nfev=max_nfev).fit.robot
+    return fit(robot, train, free, procedures=procs, max_nfev=max_nfev).robot
+
+
+def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, baselines: bool = True,
+                      max_nfev: int = 30, progress: Callable[[str], None] | None = None) -> list[RunError]:
+    """Leave-one-run-out NRMSE of each physics model (label -> PhysicsModel) and, with
+    `baselines`, of the two black boxes, over every run of `obs` (module docstring)."""
+    from omnibench.analysis import baseline
+
+    say = progress or (lambda s: None)
+    runs = obs.run_ids
+    air = [r for r in runs if _run_kind(obs, r) != "floor trace"]
+    floor = [r for r in runs if r not in air]
+    folds: list[tuple[str, list[str]]] = [(r, [x for x in air if x != r]) for r in air]
+    if floor:
+        folds += [(r, air) for r in floor]
+    out = []
+    for held, train_runs in folds:
+        if not train_runs:
+            continue
+        train = obs.select(runs=train_runs)
+        err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
+        for label, model in models.items():
+            say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
+            err.nrmse[label] = _run_error(fit_physics(model, train, max_nfev), obs, held)
+        held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []
+        train_tr = baseline.traces(obs, train_runs)
+        if baselines and held_tr and train_tr:
+            for dead, label in ((False, "black box (lag + Coulomb)"), (True, "black box + dead time")):
+                say(f"{held}: fitting {label}")
+                err.nrmse[label] = baseline.fit_black_box(train_tr, dead).nrmse(held_tr[0])
+        out.append(err)
+    return out
+
+
+def table(errors: Sequence[RunError]) -> str:
+    """Held-out NRMSE per run and model, with the mean over in-air traces."""
+    labels: list[str] = []
+    for e in errors:
+        labels += [k for k in e.nrmse if k not in labels]
+    width = max(12, *(len(x) for x in labels))
+    lines = [f"{'held-out run':<44} {'kind':<13} " + " ".join(f"{x:>{width}}" for x in labels)]
+    for e in errors:
+        lines.append(f"{e.run[:44]:<44} {e.kind:<13} "
+                     + " ".join(f"{100 * e.nrmse[x]:>{width - 2}.2f} %" if x in e.nrmse else f"{'--':>{width}}"
+                                for x in labels))
+    air = [e for e in errors if e.kind == "in-air trace"]
+    if air:
+        means = {x: float(np.mean([e.nrmse[x] for e in air if x in e.nrmse])) for x in labels
+                 if all(x in e.nrmse for e in air)}
+        lines.append(f"{'mean over in-air traces':<44} {'':<13} "
+                     + " ".join(f"{100 * means[x]:>{width - 2}.2f} %" if x in means else f"{'--':>{width}}"
+                                for x in labels))
+    return "\n".join(lines)

@@ -1,0 +1,427 @@
+"""The adaptive campaign: plan, run, fit, re-plan until every target SE is met or the budget
+(robot minutes, operator actions) is spent.
+
+Each round fits all data so far, plans the whole remaining design from that fit
+(omnibench.analysis.design), and runs only its first block in one pose (up to the next flip):
+the flip is where the operator is busy anyway, and re-planning there uses the newest data.
+The first time a procedure runs, only a pilot (the best-ranked half of its steps, half the
+repetitions) is run: its fit measures the noise the plan assumed (each observation group's
+chi^2/dof), so the rest is planned with the noise the robot actually has.
+
+`adaptive_loop` is independent of how steps are executed: `execute(files)` runs procedure
+files and returns their Observations (the campaign runs them through the runner on a port;
+benchmarks/design.py simulates them). Every decision is passed to `log` (the campaign writes
+it into each run's events and the report).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from omnibench.analysis.design.files import diagnostic_floor, space_from_files, write_procedures
+from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
+from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
+from omnibench.bench.campaign import Analyse
+from omnibench.bench.procedure import World
+from omnibench.errors import UserError
+
+MAX_ROUNDS = 10
+PILOT = 0.5
+
+
+@dataclass
+class Round:
+    """One plan-run-fit round: what was planned, what ran, what the fit then said."""
+
+    index: int
+    planned: dict[str, Any]
+    ran: list[str]
+    files: list[str]
+    robot_seconds: float  # cumulative, the cost model's
+    actions: dict[str, int]  # cumulative
+    se: dict[str, float] = field(default_factory=dict)  # fitted SE after the round
+    expected_se: dict[str, float] = field(default_factory=dict)  # the plan's prediction for its whole design
+    block_expected_se: dict[str, float] = field(default_factory=dict)  # prediction for the block that ran
+
+
+@dataclass
+class AdaptiveResult:
+    rounds: list[Round]
+    targets: dict[str, float]
+    met: bool
+    stop_reason: str
+    fit: Any
+    refused: dict[str, str]
+    obs: Any
+    initial_se: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def robot_seconds(self) -> float:
+        return self.rounds[-1].robot_seconds if self.rounds else 0.0
+
+    @property
+    def actions(self) -> dict[str, int]:
+        return self.rounds[-1].actions if self.rounds else {}
+
+    @property
+    def operator_actions(self) -> int:
+        return int(sum(self.actions.values()))
+
+
+def first_block(units: list[Unit]) -> list[Unit]:
+    """The units up to the first change of pose (the next flip)."""
+    if not units:
+        return []
+    mode = units[0].candidate.world.mode
+    out = []
+    for u in units:
+        if u.candidate.world.mode != mode:
+            break
+        out.append(u)
+    return out
+
+
+def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
+    """For procedures without data yet: the best-ranked half of their units, half the repetitions
+    (in the units' run order); `required` candidates (the diagnostic floor) always run in full."""
+    keep: dict[int, int] = {id(u): u.reps for u in units if u.candidate in required}
+    for proc in dict.fromkeys(u.candidate.procedure for u in units):
+        us = [u for u in units if u.candidate.procedure == proc and id(u) not in keep]
+        if proc in have:
+            keep.update({id(u): u.reps for u in us})
+        else:
+            for u in sorted(us, key=lambda u: u.rank)[:max(1, math.ceil(PILOT * len(us)))]:
+                keep[id(u)] = max(1, math.ceil(PILOT * u.reps))
+    return [Unit(u.candidate, keep[id(u)], u.rank) for u in units if id(u) in keep]
+
+
+def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
+    """The fit of all data so far, started from the previous round's values (None if it fails)."""
+    from omnibench.analysis.fitting import fit
+
+    if obs is None:
+        return None
+    try:
+        return fit(previous.robot if previous is not None else robot, obs)
+    except UserError:
+        return None
+
+
+def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
+                  execute: Callable[[list[tuple[str, Path]], int], Any], folder: Path, *,
+                  costs: Costs = Costs(), limits: Limits = Limits(), current: bool = True,
+                  budget_seconds: float = math.inf, budget_actions: float = math.inf,
+                  log: Callable[[str, dict[str, Any]], None] = lambda kind, rec: None,
+                  max_rounds: int = MAX_ROUNDS, space: Space | None = None) -> AdaptiveResult:
+    """Plan, run (`execute(files, round) -> Observations`), fit, re-plan; see the module doc."""
+    from omnibench.analysis.observations import Observations
+
+    space = space or space_from_files(robot, files, limits)
+    floor = diagnostic_floor(robot, files, space)
+    obs = None
+    res = None
+    world: World | None = None
+    spent_s = 0.0
+    acts = {"flip": 0, "wheels": 0, "payload": 0, "measure": 0}
+    rounds: list[Round] = []
+    refused: dict[str, str] = {}
+    reason = f"stopped after {max_rounds} rounds"
+    met = False
+    initial_se: dict[str, float] = {}
+    for r in range(1, max_rounds + 2):
+        res = _fit(robot, obs, res)
+        se = {p: (res.se.get(p, math.inf) if res is not None else math.inf) for p in targets}
+        values = res.values if res is not None else {}
+        tabs = target_se(targets, {p: values.get(p, _value(robot, p)) for p in targets})
+        if rounds:
+            rounds[-1].se = {p: _finite(v) for p, v in se.items()}
+        else:
+            initial_se = dict(se)
+        live = [p for p in targets if p not in refused]
+        if res is not None and live and all(se[p] <= tabs[p] for p in live):
+            met, reason = True, "every target met"
+            break
+        if r > max_rounds:
+            break
+        n_acts = sum(acts.values())
+        if spent_s >= budget_seconds or n_acts >= budget_actions:
+            reason = "budget spent"
+            break
+        have = set(obs.procedures()) if obs is not None else set()
+        design = plan(robot, res, targets, space, costs, current=current, start=world,
+                      budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
+                      required=[c for c in floor if c.procedure not in have], obs=obs)
+        refused.update(design.refused)
+        if not design.units:
+            reason = "the plan adds nothing (targets refused or out of reach within the budget)"
+            log("design_stop", {"round": r, "why": reason, "notes": design.notes})
+            break
+        if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
+            # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
+            block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
+        else:
+            block = pilot(first_block(design.units), have, floor)
+        written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
+        block_design = _block_prediction(robot, res, obs, current, block)
+        rec = {"round": r, "why": "largest drop of the weighted A-criterion per second of cost",
+               "fit_se": {p: _finite(v) for p, v in se.items()}, "targets": tabs,
+               "plan": design.to_json(), "runs_now": [u.candidate.label + f" x{u.reps}" for u in block],
+               "expected_se_after_block": {p: _finite(block_design.get(p, math.inf)) for p in targets},
+               "files": [str(p) for _, p in written]}
+        log("design_round", rec)
+        new = execute(written, r)
+        obs = new if obs is None else Observations.concat([obs, new])
+        worlds = [u.candidate.world for u in block for _ in range(u.reps)]
+        a = sequence_actions(worlds, sum(u.candidate.measurements * u.reps for u in block), world, end=None)
+        for k, n in a.items():
+            acts[k] += n
+        world = worlds[-1]
+        spent_s += sum(u.candidate.robot_seconds * u.reps for u in block) + sum(
+            2 * space.sweep_rest for _, p in written if "sweep" in p.name)
+        rounds.append(Round(index=r, planned=design.to_json(), ran=rec["runs_now"], files=rec["files"],
+                            robot_seconds=spent_s, actions=dict(acts),
+                            expected_se={p: _finite(design.se_after.get(p, math.inf)) for p in targets},
+                            block_expected_se=rec["expected_se_after_block"]))
+    if rounds and world is not None:  # the campaign leaves the robot as it found it
+        for k, n in world_actions(world, REST).items():
+            rounds[-1].actions[k] += n
+    final = AdaptiveResult(rounds=rounds, targets=tabs, met=met, stop_reason=reason, fit=res, refused=refused,
+                           obs=obs, initial_se=initial_se)
+    log("design_end", {"met": met, "why": reason, "robot_seconds": final.robot_seconds,
+                       "operator_actions": final.operator_actions, "refused": refused})
+    return final
+
+
+def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list[Unit]) -> dict[str, float]:
+    """Expected SE after only `block` runs (the design's information restricted to it)."""
+    import numpy as np
+
+    from omnibench.analysis.design.information import candidate_information, prior_information
+    from omnibench.analysis.design.planner import _se, planning_names
+
+    model = res.robot if res is not None else robot
+    names = planning_names(model, current)
+    ci = candidate_information(model, [u.candidate for u in block], names, current=current,
+                               group_s2=res.group_s2 if res is not None else None)
+    M = prior_information(res, names, ci.scale, obs) + np.einsum("k,kij->ij", np.array([u.reps for u in block], float),
+                                                             ci.info)
+    return dict(zip(names, _se(M, ci.scale)))
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _value(robot: Any, p: str) -> float:
+    from omnibench.analysis.fitting import param_value
+
+    return param_value(robot, p)
+
+
+# --------------------------------------------------------------------------- the campaign on a port
+def _append_event(run_dir: Path, kind: str, rec: Mapping[str, Any]) -> None:
+    """Add a design decision to a finished run's event log (same line format as the runner's)."""
+    from omnibench.runs.store import dumps, utc_now
+
+    with open(Path(run_dir) / "events.jsonl", "a", encoding="utf-8") as fh:
+        fh.write(dumps({"kind": kind, "host_time": utc_now(), "t": None, "step": None, **rec}) + "\n")
+
+
+def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file: Path | None = None,
+                          procedures_dir: Path | None = None, costs: Costs = Costs(), limits: Limits = Limits(),
+                          current: bool = True, budget_minutes: float | None = None,
+                          budget_actions: int | None = None, echo: Callable[[str], None] = print,
+                          stages: tuple[str, ...] = ("fit", "validate-energy", "diagnose"),
+                          energy: bool = True, analyse: "Analyse | None" = None) -> dict[str, Any]:
+    """`omnibench campaign --adaptive`: the adaptive loop on `port` through the runner, then the
+    energy trajectories, the analysis stages and the report (with the design's rounds).
+
+    analyse: as for `run_campaign` (the command line passes omnibench.cli.stages.run_analysis)."""
+    from omnibench import __version__
+    from omnibench.analysis.observations import Observations
+    from omnibench.bench.campaign import make_plots, procedure_files, write_report
+    from omnibench.bench.session import load_robot_file, run_command
+    from omnibench.runs.store import json_ready
+
+    out = Path(out)
+    robot, _, _ = load_robot_file(robot_file)
+    targets = parse_targets(target_text or "", robot)
+    files = procedure_files(procedures_dir)
+    space = space_from_files(robot, files, limits)
+    if not port:
+        raise UserError("no --port given (sim:// for the simulated robot)")
+    for name, v in (("--budget-minutes", budget_minutes), ("--budget-actions", budget_actions)):
+        if v is not None and not v > 0:
+            raise UserError(f"{name} {v}: a budget must be a positive number")
+    runs_dir = out / "runs"
+    if runs_dir.is_dir() and any(runs_dir.glob("*/run.json")):
+        raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    log_path = out / "design.jsonl"
+    pending: dict[str, Any] = {}
+    results: dict[str, Any] = {"port": port, "out": str(out), "tool_version": __version__,
+                               "robot_file": str(robot_file) if robot_file else "default", "procedures": {},
+                               "analysis": {}, "runs": []}
+
+    def log(kind: str, rec: dict[str, Any]) -> None:
+        from omnibench.runs.store import dumps
+
+        with open(log_path, "a", encoding="utf-8") as fh:
+            fh.write(dumps({"kind": kind, **rec}) + "\n")
+        if kind == "design_round":
+            pending.clear()
+            pending.update(rec)
+            echo(f"== design round {rec['round']}: " + "; ".join(rec["runs_now"]))
+        else:
+            echo(f"== design: {rec.get('why')}")
+
+    def execute(written: list[tuple[str, Path]], r: int) -> Any:
+        dirs = []
+        for proc, path in written:
+            echo(f"== {proc}: {path}")
+            res = run_command(proc, port=port, procedure_file=path, robot_file=robot_file, out=runs_dir, echo=echo,
+                              progress=False)
+            _append_event(Path(res["run"]), "design", {k: pending.get(k) for k in (
+                "round", "why", "fit_se", "targets", "runs_now", "expected_se_after_block", "files")})
+            results["procedures"][proc] = res
+            results["runs"].append(res["run"])
+            dirs.append(res["run"])
+        return Observations.from_runs(dirs, robot)
+
+    result = adaptive_loop(robot, targets, files, execute, out / "design", costs=costs, limits=limits,
+                           current=current, budget_seconds=60 * budget_minutes if budget_minutes else math.inf,
+                           budget_actions=budget_actions if budget_actions is not None else math.inf,
+                           log=log, space=space)
+    if energy:
+        echo("== energy: " + str(files["energy_trajectories"]))
+        results["procedures"]["energy_trajectories"] = run_command(
+            "energy_trajectories", port=port, procedure_file=files["energy_trajectories"], robot_file=robot_file,
+            out=runs_dir, echo=echo, progress=False)
+    results["analysis"] = analyse(runs_dir, out, robot_file, echo, stages) if analyse is not None else {}
+    results["plots"] = make_plots(results, out, robot)
+    summary = design_summary(result, robot, files, space, costs, current)
+    results["design"] = summary
+    results["plots"]["design"] = design_plot(summary, out / "plots" / "design_se_vs_time.png")
+    results["host_seconds"] = time.monotonic() - t0
+    report = write_report(results, out, robot)
+    with open(report, "a", encoding="utf-8") as fh:
+        fh.write("\n" + "\n".join(design_lines(summary, out)) + "\n")
+    results["report"] = str(report)
+    (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
+                                       encoding="utf-8")
+    echo(f"report: {report}")
+    return results
+
+
+def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path], space: Space, costs: Costs,
+                   current: bool) -> dict[str, Any]:
+    """The rounds, and the fixed grid's expected SE against robot time (its information at the
+    final fit, in the order the shipped procedures run) for comparison."""
+    import numpy as np
+
+    from omnibench.analysis.design.files import fixed_grid_units
+    from omnibench.analysis.design.information import candidate_information, prior_information
+    from omnibench.analysis.design.planner import _se, planning_names
+
+    targets = result.targets
+    fixed = fixed_grid_units(robot, files)
+    curve: list[dict[str, Any]] = []
+    fixed_s = fixed_a = math.nan
+    if result.fit is not None:
+        model = result.fit.robot
+        names = planning_names(model, current)
+        ci = candidate_information(model, [u.candidate for u in fixed], names, current=current,
+                                   group_s2=result.fit.group_s2)
+        M = prior_information(None, names, ci.scale)
+        t = 0.0
+        seen_rest: set[Any] = set()
+        for k, u in enumerate(fixed):
+            M = M + u.reps * ci.info[k]
+            t += u.reps * u.candidate.robot_seconds
+            if u.candidate.procedure == "sweep" and u.candidate.world not in seen_rest:
+                seen_rest.add(u.candidate.world)
+                t += 2 * space.sweep_rest
+            se = dict(zip(names, _se(M, ci.scale)))
+            curve.append({"robot_seconds": t, "se": {p: _finite(se[p]) for p in targets}})
+        fixed_s = t
+        fixed_a = sum(sequence_actions([u.candidate.world for u in fixed for _ in range(u.reps)],
+                                       sum(u.candidate.measurements * u.reps for u in fixed)).values())
+    return {"targets": targets, "met": result.met, "stop_reason": result.stop_reason, "refused": result.refused,
+            "robot_seconds": result.robot_seconds, "actions": result.actions,
+            "operator_actions": result.operator_actions,
+            "rounds": [{"round": r.index, "robot_seconds": r.robot_seconds, "actions": r.actions,
+                        "operator_actions": int(sum(r.actions.values())), "ran": r.ran, "se": r.se,
+                        "expected_se": r.block_expected_se} for r in result.rounds],
+            "fixed_grid": {"robot_seconds": fixed_s, "operator_actions": fixed_a, "curve": curve},
+            "final_se": {p: _finite(result.fit.se.get(p, math.nan)) if result.fit is not None else None
+                         for p in targets}}
+
+
+def design_plot(summary: Mapping[str, Any], path: Path) -> str:
+    """SE / target against robot time: the adaptive rounds (fitted) and the fixed grid (expected)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    targets = summary["targets"]
+    for n, p in enumerate(targets):
+        color = f"C{n % 10}"
+        pts = [(r["robot_seconds"], r["se"].get(p)) for r in summary["rounds"] if r["se"].get(p)]
+        if pts:
+            ax.plot([x for x, _ in pts], [y / targets[p] for _, y in pts], "o-", color=color, label=f"{p} adaptive")
+        cur = [(c["robot_seconds"], c["se"].get(p)) for c in summary["fixed_grid"]["curve"] if c["se"].get(p)]
+        if cur:
+            ax.plot([x for x, _ in cur], [y / targets[p] for _, y in cur], "--", color=color, lw=0.9, alpha=0.8)
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.set_yscale("log")
+    ax.set_xlabel("robot time (s)")
+    ax.set_ylabel("SE / target")
+    ax.set_title("adaptive (fitted, o-) vs the fixed grid (expected, --)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def design_lines(summary: Mapping[str, Any], out: Path) -> list[str]:
+    """Markdown for the report: targets, rounds, the comparison with the fixed grid."""
+    fx = summary["fixed_grid"]
+    lines = ["## Adaptive design", "",
+             f"- stopped: {summary['stop_reason']} after {len(summary['rounds'])} round(s); "
+             f"robot time {summary['robot_seconds']:.0f} s, {summary['operator_actions']} operator actions "
+             f"({', '.join(f'{k} {v}' for k, v in summary['actions'].items() if v)})",
+             f"- the fixed grid (the procedure files as shipped): {fx['robot_seconds']:.0f} s, "
+             f"{fx['operator_actions']} operator actions; ratio adaptive / fixed: robot time "
+             f"{summary['robot_seconds'] / fx['robot_seconds']:.2f}, operator actions "
+             f"{summary['operator_actions'] / max(fx['operator_actions'], 1):.2f}" if fx["robot_seconds"] == fx["robot_seconds"]
+             else "- the fixed grid: not priced (no fit)", ""]
+    for p, why in summary["refused"].items():
+        lines.append(f"- refused target {p}: {why}")
+    lines += ["", "| parameter | target SE | SE reached |", "|---|---|---|"]
+    for p, t in summary["targets"].items():
+        lines.append(f"| {p} | {t:.3g} | {_fmt(summary['final_se'].get(p))} |")
+    lines += ["", "| round | ran | robot s | actions | " + " | ".join(f"SE {p}" for p in summary["targets"]) + " |",
+              "|---|---|---|---|" + "---|" * len(summary["targets"])]
+    for r in summary["rounds"]:
+        lines.append(f"| {r['round']} | {'; '.join(r['ran'])} | {r['robot_seconds']:.0f} | {r['operator_actions']} | "
+                     + " | ".join(_fmt(r["se"].get(p)) for p in summary["targets"]) + " |")
+    lines += ["", "Every round's decision (fit SE, plan, expected SE) is in `design.jsonl` and in the events of "
+              "the runs it made (`kind = design`).", "",
+              f"![SE against robot time](plots/design_se_vs_time.png)", ""]
+    return lines
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.3g}" if isinstance(v, (int, float)) and math.isfinite(v) else "--"

@@ -1,0 +1,342 @@
+"""The firmware board: the real firmware on a simulated ATmega2560, the plant as its robot.
+
+`FirmwareBoard` has the interface of `SimBoard` (feed / advance_to / take_output / status),
+so `omnibench sim serve --firmware X.elf` serves it on a pseudo-terminal with the same loop.
+Lockstep, as in flight-controller SITL: the chip runs one step (1 ms of board time), the
+Sabertooth packets it sent in that step set the wheel duties from the instant each packet
+ended, the plant integrates to the end of the step, and the counters and analog inputs are
+updated from the new state (the counters extrapolate within the step with the wheel speeds).
+
+The rig around the board also plays the simulated operator and tape measure, as a person
+at the real robot would: the firmware answers the simulator-only messages UNSUPPORTED (it
+is the robot's firmware); the rig replaces that ACK's status with the outcome of the world
+change, puts SIM_TRUTH before it, sets the SIMULATOR capability in HELLO and renumbers the
+board's frames so its `seq` stays continuous (gaps the firmware makes are kept).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omnibench.errors import UserError
+from omnibench.link.codec import Codec
+from omnibench.link.framing import Deframer, FrameError, decode_chunk, encode_frame
+from omnibench.link.spec import load_protocol
+from omnibench.sim.firmware.fil import F_CPU, Harness
+from omnibench.sim.plant import Plant
+from omnibench.sim.sensors import Sensors
+from omnibench.sim.world import World
+
+STEP_US = 1000          # lockstep period, µs of board time
+CYCLES_PER_US = F_CPU // 1_000_000
+MODES = ("ground", "upside_down")
+_NO_STATE = ("PING", "HELLO_REQ", "SIM_GET_TRUTH", "SIM_SET_WORLD")
+
+
+def build_config(elf: Path) -> dict[str, Any]:
+    """The build settings written beside the .elf by the Makefile (omnibot.config.json)."""
+    if not elf.is_file():
+        raise UserError(f"no firmware at {elf} (build it with: make -C firmware)")
+    cfg = elf.with_suffix(".config.json")
+    if not cfg.exists():
+        raise UserError(f"{cfg} is missing: build the firmware with make -C firmware (it writes it)")
+    return json.loads(cfg.read_text())
+
+
+class FirmwareBoard:
+    """The firmware in simavr plus the plant, with SimBoard's interface."""
+
+    def __init__(self, world: World, elf: str | Path) -> None:
+        self.world = world
+        self.elf = Path(elf)
+        self.config = build_config(self.elf)
+        self.spec = load_protocol(world.protocol)
+        self.codec = Codec(self.spec)
+        self.lock = threading.RLock()
+        self.chip = Harness(self.elf)
+        seeds = np.random.SeedSequence(world.seed).spawn(2)
+        self.rng = np.random.default_rng(seeds[0])
+        self.robot = world.robot()
+        self.plant = Plant(self.robot, world.scenario(), world.dt)
+        self.sensors = Sensors(world.sensors, self.robot.counts_per_rev, np.random.default_rng(seeds[1]))
+        self.motor_map = [tuple(m) for m in self.config["motor_map"]]
+        self.encoder_signs = np.asarray(self.config["encoder_signs"], dtype=float)
+        self.channel = {(a, c): 0.0 for a, c, _ in self.motor_map}   # driver channel outputs, [-1, 1]
+        self.clock_us = 0
+        self.disconnected = False
+        self.wrong_baud = False
+        self.out = bytearray()
+        self.wire_packets: list[tuple[float, int, int, int]] = []  # (board s, address, command, value)
+        self.record_packets = False
+        self.max_wall_s: float | None = None
+        self._from_host = Deframer(self.codec.crc, self.spec.max_frame_bytes)
+        self._from_board = bytearray()
+        self._pending_sim: dict[int, tuple[str, dict]] = {}
+        self._host_frames: dict[int, dict] = {}
+        self._inserted = 0
+        self.boot_id = 0
+        self.commanded = np.zeros(4)
+        self.faults = 0
+        self.telemetry_hz = 0.0
+        self.watchdog_s = 0.5
+        self.last_command = "BOOT"
+        self.host_frames = 0
+        self._update_inputs()
+
+    # ------------------------------------------------------------------ time
+    @property
+    def time_us(self) -> int:
+        return self.clock_us
+
+    def next_output_us(self) -> int | None:
+        """Fast clock: with telemetry on, step 1 ms at a time as the host reads."""
+        with self.lock:
+            return self.clock_us + STEP_US if self.telemetry_hz else None
+
+    def next_event_us(self) -> int | None:
+        with self.lock:
+            return self.clock_us + STEP_US
+
+    def duties(self) -> np.ndarray:
+        """What each wheel's motor gets now: driver channel output through the wiring, 0 with pin 7 low."""
+        if not self.chip.drivers_enabled:
+            return np.zeros(4)
+        return np.array([s * self.channel[(a, c)] for a, c, s in self.motor_map])
+
+    def advance_to(self, clock_us: int) -> None:
+        """Run chip and plant in lockstep up to board time `clock_us`.
+
+        With `max_wall_s` set (the pty server sets it), a call returns after that much wall
+        time even if short of `clock_us`: on a machine too slow for real time the board then
+        runs slower than the wall clock but keeps answering the host."""
+        wall_end = time.monotonic() + self.max_wall_s if self.max_wall_s else math.inf
+        with self.lock:
+            while self.clock_us < clock_us and time.monotonic() < wall_end:
+                end = min(int(clock_us), self.clock_us + STEP_US)
+                self.chip.run_until(end * CYCLES_PER_US)
+                now_us = self.chip.cycles / CYCLES_PER_US
+                for cyc, addr, cmd, val in self.chip.packets():
+                    t = cyc / F_CPU
+                    self.plant.advance_to(t, self.duties())
+                    self._apply_packet(addr, cmd, val)
+                    if self.record_packets:
+                        self.wire_packets.append((t, addr, cmd, val))
+                self.plant.advance_to(now_us * 1e-6, self.duties())
+                self.clock_us = int(now_us)
+                self._update_inputs()
+                data, _ = self.chip.host_read()
+                if data:
+                    self._board_bytes(data)
+
+    def _apply_packet(self, addr: int, cmd: int, val: int) -> None:
+        if cmd in (0, 1, 4, 5):
+            ch = 1 if cmd < 4 else 2
+            if (addr, ch) in self.channel:
+                self.channel[(addr, ch)] = (-1 if cmd in (1, 5) else 1) * min(val, 127) / 127
+
+    def _update_inputs(self) -> None:
+        """Counters and analog inputs from the plant's state (with the world's sensor noise)."""
+        s = self.plant.state
+        k = self.robot.counts_per_rev / (2 * math.pi)
+        counts = (np.asarray(s.phi) + self.sensors.encoder_phase) * k * self.encoder_signs
+        rates = np.asarray(s.phi_dot) * k * self.encoder_signs
+        self.chip.set_counters(counts, rates)
+        cfg = self.config
+        v = self.sensors.battery_voltage(float(s.V_batt))
+        self.chip.set_adc_mv(0, v / float(cfg["battery_divider"]) * 1000)
+        gain, zero = float(cfg["hall_mv_per_a"]), float(cfg["hall_zero_mv"])
+        if cfg["battery_current"] == "hall":
+            i = float(s.I_batt) + self.rng.normal(0.0, self.world.sensors.battery_current_noise)
+            self.chip.set_adc_mv(5, zero + gain * i)
+        if cfg["motor_current"] == "hall":
+            cur = np.asarray(s.motor_current) + self.rng.normal(0.0, self.world.sensors.current_noise, 4)
+            for w, (_, _, sign) in enumerate(self.motor_map):  # the sensor sits in the driver's lead
+                self.chip.set_adc_mv(1 + w, zero + gain * sign * cur[w])  # A1..A4
+
+    def _trace(self, text: str) -> None:
+        """Debug trace of the rig (env OMNIBENCH_FIL_TRACE=file)."""
+        path = os.environ.get("OMNIBENCH_FIL_TRACE")
+        if path:
+            with open(path, "a") as fh:
+                fh.write(f"{self.clock_us / 1e6:.6f} {text}\n")
+
+    # ------------------------------------------------------------------ host side
+    def feed(self, data: bytes) -> None:
+        """Bytes the host wrote: all go to UART0; the rig notes the frames it must act on."""
+        with self.lock:
+            if self.wrong_baud:
+                data = bytes(self.rng.integers(1, 256, len(data), dtype=np.uint8))
+            self.chip.host_write(data)
+            for body in self._from_host.feed(data):
+                try:
+                    msg = self.codec.decode_raw(body)
+                except FrameError:
+                    continue
+                self.host_frames += 1
+                self._trace(f"host {msg.name} seq {msg.seq}")
+                if self.spec.message(msg.name).sim_only:
+                    self._pending_sim[msg.seq] = (msg.name, dict(msg.fields))
+                self._host_frames[msg.seq] = dict(msg.fields)  # applied when the firmware ACKs OK
+                if len(self._host_frames) > 64:
+                    self._host_frames.pop(next(iter(self._host_frames)))
+
+    def _board_bytes(self, data: bytes) -> None:
+        """Frames the firmware sent: track its state, act for the simulated operator, renumber."""
+        self._from_board += data
+        while 0 in self._from_board:
+            i = self._from_board.index(0)
+            chunk, self._from_board = bytes(self._from_board[:i]), self._from_board[i + 1:]
+            try:
+                msg = self.codec.decode_raw(decode_chunk(chunk, self.codec.crc))
+            except FrameError:
+                self._emit_raw(chunk + b"\x00")
+                continue
+            self._board_frame(msg)
+
+    def _board_frame(self, msg) -> None:
+        f = dict(msg.fields)
+        if msg.name == "HELLO":
+            if msg.seq == 0:  # a (re)boot: the firmware numbers from 0 again
+                self._inserted = 0
+                self.commanded[:] = 0
+                self.faults = 0
+                self.telemetry_hz = 0
+                self.last_command = "BOOT"
+            self.boot_id = f["boot_id"]
+            f["capabilities"] |= self.spec.flag_mask("capabilities", "SIMULATOR")
+        elif msg.name == "EVENT":
+            ev = self.spec.enum_name("event", f["code"])
+            self._trace(f"board EVENT {ev} {f['arg']}")
+            if ev in ("WATCHDOG", "FAULT"):
+                self.commanded[:] = 0
+                self.faults |= (1 << self.spec.flags["faults"]["WATCHDOG"]) if ev == "WATCHDOG" else f["arg"]
+                self.last_command = ev
+        elif msg.name == "TELEMETRY":
+            self.faults = f["faults"]
+        elif msg.name == "ACK":
+            self._ack(msg.seq, f)
+            return
+        self._emit(msg.name, msg.seq, f)
+
+    def _ack(self, seq: int, f: dict) -> None:
+        m = self.spec.by_id(f["cmd_id"])
+        name = m.name if m else "?"
+        status = self.spec.enum_name("status", f["status"])
+        if m is not None and m.sim_only and f["cmd_seq"] in self._pending_sim:
+            req, fields = self._pending_sim.pop(f["cmd_seq"])
+            status = self._operator(req, fields, seq, int(f["time"]))
+            f["status"] = self.spec.enums["status"][status]
+        elif status == "OK":
+            sent = self._host_frames.get(f["cmd_seq"], {})
+            if name == "SET_DUTIES":
+                self.commanded[:] = [d / 32767 for d in sent.get("duty", (0, 0, 0, 0))]
+            elif name == "STOP":
+                self.commanded[:] = 0
+            elif name == "CLEAR_FAULTS":
+                self.faults = 0
+            elif name == "CONFIGURE" and sent:
+                self.telemetry_hz = float(sent["telemetry_rate"])
+                self.watchdog_s = sent["watchdog"] * 1e-3
+        elif status == "FAULT_ACTIVE":
+            self.commanded[:] = 0
+        if status == "OK" and name not in _NO_STATE and name != "?":
+            self.last_command = name
+        self._emit("ACK", seq, f)
+
+    def _operator(self, req: str, f: dict, seq: int, t_ack_us: int) -> str:
+        """The simulated operator and tape measure (what SimBoard does for these messages).
+
+        SIM_TRUTH carries the board time of the ACK it precedes: the firmware's clock, not the
+        rig's (a host drops a frame whose board time runs backwards)."""
+        if req == "SIM_GET_TRUTH":
+            x, y, psi = self.plant.state.pose
+            clip = lambda v: int(min(max(round(v * 1e6), -2**31), 2**31 - 1))  # noqa: E731
+            self._emit("SIM_TRUTH", seq, {"x": clip(x), "y": clip(y), "psi": clip(psi),
+                                          "mode": MODES.index(self.plant.scenario.mode),
+                                          "time": t_ack_us & 0xFFFFFFFF})
+            self._inserted += 1
+            return "OK"
+        bits = self.spec.flags["world_mask"]
+        if np.any(self.commanded != 0) or np.any(self.duties() != 0):
+            return "BAD_STATE"
+        kw: dict[str, Any] = {}
+        if f["mask"] & (1 << bits["MODE"]):
+            if not 0 <= f["mode"] < len(MODES):
+                return "BAD_VALUE"
+            kw["mode"] = MODES[f["mode"]]
+        if f["mask"] & (1 << bits["PAYLOAD"]):
+            kw["payload"] = f["payload"] * 1e-3
+        if f["mask"] & (1 << bits["WHEEL_MASS"]):
+            masses = tuple(m * 1e-4 for m in f["wheel_mass"])
+            if min(masses) <= 0:
+                return "BAD_VALUE"
+            kw["wheel_mass"] = masses
+        self.plant.set_world(**kw)
+        self._update_inputs()
+        return "OK"
+
+    def _emit(self, name: str, fw_seq: int, raw: dict) -> None:
+        """Re-encode with the rig's continuous seq (firmware seq + frames the rig inserted)."""
+        seq = (fw_seq + self._inserted) & 0xFFFF
+        self._emit_raw(encode_frame(self.codec.encode_raw(name, seq, raw), self.codec.crc))
+
+    def _emit_raw(self, wire: bytes) -> None:
+        if self.wrong_baud:
+            wire = bytes(self.rng.integers(0, 256, len(wire), dtype=np.uint8))
+        self.out += wire
+
+    def take_output(self, n: int | None = None) -> bytes:
+        with self.lock:
+            n = len(self.out) if n is None else min(n, len(self.out))
+            data = bytes(self.out[:n])
+            del self.out[:n]
+            return data
+
+    def set_host_baud(self, baudrate: int) -> None:
+        with self.lock:
+            self.wrong_baud = int(baudrate) != self.world.baudrate
+
+    # ------------------------------------------------------------------ truth, status
+    def stop_motors(self) -> None:
+        """The rig is shut down: the robot's power goes off with it."""
+        with self.lock:
+            for k in self.channel:
+                self.channel[k] = 0.0
+            self.commanded[:] = 0
+            self.last_command = "SHUTDOWN"
+
+    def truth(self) -> dict[str, Any]:
+        with self.lock:
+            s = self.plant.state
+            return {"pose": [float(v) for v in s.pose], "phi_dot": [float(v) for v in s.phi_dot],
+                    "I_batt": float(s.I_batt), "V_batt": float(s.V_batt), "E_batt": float(s.E_batt)}
+
+    def cpu_load(self) -> tuple[int, int]:
+        """(cycles run, cycles asleep) of the simulated ATmega2560 since power-up."""
+        return self.chip.cycles, self.chip.sleep_cycles
+
+    def status(self) -> dict[str, Any]:
+        with self.lock:
+            d = self.duties()
+            return {
+                "board_time": self.clock_us * 1e-6, "sim_time": self.clock_us * 1e-6, "boot_id": self.boot_id,
+                "duties": [float(x) for x in d], "motors_stopped": bool(np.all(d == 0)),
+                "commanded": [float(x) for x in self.commanded],
+                "faults": self.spec.flag_names("faults", self.faults),
+                "telemetry_hz": self.telemetry_hz, "watchdog_s": self.watchdog_s,
+                "host_frames": self.host_frames, "last_command": self.last_command,
+                "mode": self.plant.scenario.mode, "payload": self.plant.scenario.payload,
+                "disconnected": False, "firmware": str(self.elf), "drivers_enabled": self.chip.drivers_enabled,
+                "sabertooth_bad_packets": self.chip.packets_bad,
+            }
+
+    def close(self) -> None:
+        self.chip.close()

@@ -1,0 +1,103 @@
+"""The experiment-design planner (issue 15): predictions that come true, refusals, costs, limits."""
+
+from __future__ import annotations
+
+import pytest
+
+from omnibench.analysis.design.files import space_from_files, write_procedures
+from omnibench.analysis.design.information import candidate_information
+from omnibench.analysis.design.planner import parse_targets, plan, planning_names
+from omnibench.analysis.design.space import Costs, Limits, Space, build_space
+from omnibench.analysis.fitting import fit
+from omnibench.analysis.observations import Observations
+from omnibench.analysis.simcampaign import simulated_observations
+from omnibench.bench.campaign import procedure_files
+from omnibench.bench.procedure import load_plan
+from omnibench.errors import UserError
+from omnibench.model import default_robot
+
+STEADY = {"min_hold": 0.2, "window": 0.3}
+TRUTH = dict(a=0.02, b=0.45, c=0.015)
+LIMITS = Limits(max_duty=0.8)  # the shipped files' highest level, as space_from_files caps it
+
+
+def _sweep_space(robot, wheel_sets=(("standard", (0.9,) * 4), ("weighted", (1.9,) * 4))) -> Space:
+    sp = build_space(robot, wheel_sets=list(wheel_sets), payloads=[0.0], steady=STEADY, limits=LIMITS)
+    return Space([c for c in sp.candidates if c.procedure == "sweep"], sp.sweep_rest)
+
+
+def test_planned_se_is_the_se_the_fit_then_reports(tmp_path):
+    """Plan from a first sweep, run the plan on the simulated robot, fit: the SE the plan
+    predicted is the SE obtained (within 30 %: the fit's noise scale is itself estimated)."""
+    robot = default_robot()
+    truth = robot.replace(**TRUTH)
+    files = procedure_files(None)
+    obs = simulated_observations(truth, procedures=["sweep"], seed=3)  # the shipped sweep: both wheel sets
+    res = fit(robot, obs)
+    targets = {"a": (0.5 * res.se["a"] / res.values["a"], True), "c": (0.5 * res.se["c"] / res.values["c"], True)}
+    design = plan(robot, res, targets, _sweep_space(robot), obs=obs)
+    assert design.units and all(design.met.values())
+    written = write_procedures(design.units, files, tmp_path / "next", robot)
+    more = [simulated_observations(truth, procedures=["sweep"], files={"sweep": p}, seed=11 + n, run_prefix=f"next{n}")
+            for n, (_, p) in enumerate(written)]
+    after = fit(robot, Observations.concat([obs, *more]))
+    for p in targets:
+        assert after.se[p] == pytest.approx(design.se_after[p], rel=0.3), p
+        assert after.se[p] < 0.6 * res.se[p]  # the plan did shrink it
+
+
+def test_a_parameter_the_candidates_cannot_separate_is_refused_with_the_experiment_that_would():
+    robot = default_robot()
+    one_set = _sweep_space(robot, wheel_sets=(("standard", (0.9,) * 4),))
+    # one wheel load: only a (1 + c F_N) and b (1 + c F_N) are seen
+    design = plan(robot, None, {"a": (0.05, True), "c": (0.05, True), "k_e": (0.05, True)}, one_set)
+    assert set(design.refused) == {"a", "c"}
+    assert all("second wheel set" in why for why in design.refused.values())
+    assert design.met["k_e"] and all(u.candidate.world.wheel_set == "standard" for u in design.units)
+    # with a second wheel set the same targets are planned
+    two = plan(robot, None, {"a": (0.05, True), "c": (0.05, True)}, _sweep_space(robot))
+    assert not two.refused and all(two.met.values())
+    assert {u.candidate.world.wheel_set for u in two.units} == {"standard", "weighted"}
+
+
+def test_budgets_and_costs_are_respected():
+    robot = default_robot()
+    sp = space_from_files(robot, procedure_files(None))
+    sp = Space([c for c in sp.candidates if c.procedure != "lateral" or c.duration == 1.5], sp.sweep_rest)
+    targets = parse_targets("a=0.5%,b_r=0.5%,c_r=1%", robot)
+    info = candidate_information(robot, sp.candidates, planning_names(robot))
+    free = plan(robot, None, targets, sp, info=info)
+    tight = plan(robot, None, targets, sp, budget_actions=8, budget_seconds=30, info=info)
+    assert tight.operator_actions <= 8 and tight.robot_seconds <= 30 + 1e-9
+    assert free.operator_actions > 8  # the budget did bind
+    # a dearer tape measurement buys fewer of them
+    dear = plan(robot, None, targets, sp, costs=Costs(actions={"flip": 60, "wheels": 180, "payload": 20,
+                                                               "measure": 600}), info=info)
+    assert dear.actions["measure"] <= free.actions["measure"]
+    assert dear.cost == pytest.approx(Costs(actions={"flip": 60, "wheels": 180, "payload": 20, "measure": 600}).of(
+        dear.robot_seconds, dear.actions))
+
+
+def test_safety_limits_bound_every_candidate_and_every_written_file(tmp_path):
+    robot = default_robot()
+    sp = space_from_files(robot, procedure_files(None), Limits(floor_length=1.0, max_duty=0.5))
+    assert sp.candidates
+    for c in sp.candidates:
+        peak = max(max(abs(x) for x in u) for u in c.duties(robot))
+        assert peak <= 0.5 + 1e-12
+        if c.procedure == "lateral":
+            assert c.speed * c.duration <= 1.0
+        if c.procedure == "forward":
+            assert c.duty * robot.V_batt / robot.k_e * robot.r * c.duration <= 1.0
+    sp = Space([c for c in sp.candidates if c.procedure != "lateral" or c.world.payload in (0, 4)], sp.sweep_rest)
+    design = plan(robot, None, parse_targets("a=1%,C_r=5%,a_r=5%", robot), sp)
+    for proc, path in write_procedures(design.units, procedure_files(None), tmp_path, robot):
+        load_plan(path, robot, expect=proc)  # the runner's own checks (max_duty, stall current)
+
+
+def test_target_syntax_errors_are_one_line_user_errors():
+    robot = default_robot()
+    assert parse_targets("a=2%, b=0.01", robot) == {"a": (0.02, True), "b": (0.01, False)}
+    for bad in ("a=two", "a=-1%", "zz=1%", ""):
+        with pytest.raises(UserError):
+            parse_targets(bad, robot)
