@@ -23,6 +23,10 @@ clean: worlds with any addition.
     .venv/bin/python benchmarks/diagnose.py --seeds 10 --clean 20 --jobs 2
     .venv/bin/python benchmarks/diagnose.py --seeds 2 --only stribeck_friction,pair:battery+stribeck
     .venv/bin/python benchmarks/diagnose.py --generator model --seeds 3 --json results.json
+    .venv/bin/python benchmarks/diagnose.py --from-json results.json     # figures of an interrupted run
+
+Jobs run seed-major (every world's first seed, then every world's second, ...), and --json is
+rewritten after each diagnosis, so an interrupted run still gives every world the same seeds.
 """
 
 from __future__ import annotations
@@ -99,6 +103,60 @@ class _Serial:
         return map(fn, items)
 
 
+def summarise(results: list[dict], generator: str, seconds: float) -> dict:
+    """Print the table of per-world figures from the diagnoses' results; the summary dict."""
+    by: dict[str, list[dict]] = {}
+    for r in results:
+        by.setdefault(r["label"], []).append(r)
+    print(f"generator: {generator}; {len(results)} diagnoses in {seconds:.0f} s")
+    print(f"{'world':<40} {'right first':>11} {'in 3 SE':>8} {'no 2nd':>7} {'err ratio':>9}  picks")
+    summary: dict = {"generator": generator, "worlds": {}}
+    clean_n = clean_added = 0
+    for label, rs in by.items():
+        kind, n = rs[0]["kind"], len(rs)
+        picks: dict[str, int] = {}
+        for r in rs:
+            key = "+".join(r["selected"]) or "-"
+            picks[key] = picks.get(key, 0) + 1
+        pick_s = ", ".join(f"{k} x{v}" for k, v in sorted(picks.items(), key=lambda kv: -kv[1]))
+        ratios = [x for r in rs for x in r["ratios"]]
+        med = statistics.median(ratios) if ratios else float("nan")
+        row = {"kind": kind, "runs": n, "picks": picks, "median_error_ratio": med}
+        if kind == "effect":
+            want = label.split(":")[0].split(" ")[0]
+            first = sum(bool(r["selected"]) and r["selected"][0] == want for r in rs)
+            cover = sum(bool(r["covered"]) for r in rs)
+            checked = sum(r["covered"] is not None for r in rs) or not first
+            alone = sum(len(r["selected"]) <= 1 for r in rs)
+            row.update(right_first=first, within_3se=cover if checked else None, no_second=alone)
+            cover_s = f"{cover:>4}/{n:<3}" if checked else f"{'n/a':>8}"
+            print(f"{label:<40} {first:>5}/{n:<5} {cover_s} {alone:>3}/{n:<3} {med:>9.3f}  {pick_s}")
+        elif kind == "pair":
+            want = set(label.split(":")[1].split("+")) if ":" in label else set()
+            both = sum(want <= set(r["selected"]) for r in rs)
+            row.update(both_found=both)
+            print(f"{label:<40} both found {both:>3}/{n:<3} {'':>12} {med:>9.3f}  {pick_s}")
+        elif kind == "outside":
+            ok = sum((not r["selected"]) and r["unexplained"] > 0 for r in rs)
+            row.update(unexplained_nothing_added=ok)
+            print(f"{label:<40} unexplained, nothing added {ok:>3}/{n:<3}  {pick_s}")
+        else:
+            clean_n += n
+            clean_added += sum(bool(r["selected"]) for r in rs)
+            row.update(with_addition=sum(bool(r["selected"]) for r in rs))
+        summary["worlds"][label] = row
+    if clean_n:
+        picks = {}
+        for r in results:
+            if r["kind"] == "clean":
+                for c in r["selected"]:
+                    picks[c] = picks.get(c, 0) + 1
+        print(f"clean worlds: {clean_n - clean_added}/{clean_n} with no addition"
+              f"{' (added: ' + ', '.join(f'{k} x{v}' for k, v in picks.items()) + ')' if picks else ''}")
+        summary["clean"] = {"worlds": clean_n, "no_addition": clean_n - clean_added, "picks": picks}
+    return summary
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10, help="simulated campaigns per world (default 10)")
@@ -107,7 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated world labels (as printed) to run")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     ap.add_argument("--json", default="", help="also write the results to this JSON file")
+    ap.add_argument("--from-json", default="", help="only print the figures of a (possibly interrupted) run's JSON")
     args = ap.parse_args(argv)
+    if args.from_json:
+        with open(args.from_json, encoding="utf-8") as fh:
+            runs = json.load(fh)["runs"]
+        summarise(runs, args.generator, sum(r["seconds"] for r in runs))
+        return 0
     worlds = _worlds(args.generator)
     only = {s.strip() for s in args.only.split(",") if s.strip()}
     if only:
@@ -138,55 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.json:  # partial results survive an interrupted run
                 with open(args.json, "w", encoding="utf-8") as fh:
                     json.dump({"runs": results}, fh)
-    by: dict[str, list[dict]] = {}
-    for r in results:
-        by.setdefault(r["label"], []).append(r)
-    print(f"generator: {args.generator}; {len(results)} diagnoses in {time.time() - t0:.0f} s")
-    print(f"{'world':<34} {'right first':>11} {'in 3 SE':>8} {'no 2nd':>7} {'err ratio':>9}  picks")
-    summary: dict = {"generator": args.generator, "worlds": {}}
-    clean_n = clean_added = 0
-    for label, rs in by.items():
-        kind, n = rs[0]["kind"], len(rs)
-        picks: dict[str, int] = {}
-        for r in rs:
-            key = "+".join(r["selected"]) or "-"
-            picks[key] = picks.get(key, 0) + 1
-        pick_s = ", ".join(f"{k} x{v}" for k, v in sorted(picks.items(), key=lambda kv: -kv[1]))
-        ratios = [x for r in rs for x in r["ratios"]]
-        med = statistics.median(ratios) if ratios else float("nan")
-        row = {"kind": kind, "runs": n, "picks": picks, "median_error_ratio": med}
-        if kind == "effect":
-            want = label.split(":")[0].split(" ")[0]
-            first = sum(bool(r["selected"]) and r["selected"][0] == want for r in rs)
-            cover = sum(bool(r["covered"]) for r in rs)
-            checked = sum(r["covered"] is not None for r in rs) or not first
-            alone = sum(len(r["selected"]) <= 1 for r in rs)
-            row.update(right_first=first, within_3se=cover if checked else None, no_second=alone)
-            cover_s = f"{cover:>4}/{n:<3}" if checked else f"{'n/a':>8}"
-            print(f"{label:<34} {first:>5}/{n:<5} {cover_s} {alone:>3}/{n:<3} {med:>9.3f}  {pick_s}")
-        elif kind == "pair":
-            want = set(label.split(":")[1].split("+")) if ":" in label else set()
-            both = sum(want <= set(r["selected"]) for r in rs)
-            row.update(both_found=both)
-            print(f"{label:<34} both found {both:>3}/{n:<3} {'':>12} {med:>9.3f}  {pick_s}")
-        elif kind == "outside":
-            ok = sum((not r["selected"]) and r["unexplained"] > 0 for r in rs)
-            row.update(unexplained_nothing_added=ok)
-            print(f"{label:<34} unexplained, nothing added {ok:>3}/{n:<3}  {pick_s}")
-        else:
-            clean_n += n
-            clean_added += sum(bool(r["selected"]) for r in rs)
-            row.update(with_addition=sum(bool(r["selected"]) for r in rs))
-        summary["worlds"][label] = row
-    if clean_n:
-        picks = {}
-        for r in results:
-            if r["kind"] == "clean":
-                for c in r["selected"]:
-                    picks[c] = picks.get(c, 0) + 1
-        print(f"clean worlds: {clean_n - clean_added}/{clean_n} with no addition"
-              f"{' (added: ' + ', '.join(f'{k} x{v}' for k, v in picks.items()) + ')' if picks else ''}")
-        summary["clean"] = {"worlds": clean_n, "no_addition": clean_n - clean_added, "picks": picks}
+    summary = summarise(results, args.generator, time.time() - t0)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump({"summary": summary, "runs": results}, fh, indent=2)

