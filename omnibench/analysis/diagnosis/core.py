@@ -369,7 +369,10 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         passing += core_pass
         tried += core_tried
         passing.sort(key=lambda c: -c.aic_drop)
-        adequate = [c for c in passing if not c.remaining]
+        # a core parameter (core_params.py) is a correction of the declared model, not a new
+        # mechanism standing in for another: it needs no adequacy (a wrong declared value left in
+        # biases every later test; what it leaves is reported, and sought in the next round)
+        adequate = [c for c in passing if not c.remaining or core_params.is_core(c.name)]
         added: list[Candidate] = []
         if adequate and adequate[0] is passing[0]:
             added = _polished(adequate[:1], problem, say, rnd, veto)
@@ -388,7 +391,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             if not c.reason:  # not already refused after its final fit
                 added = _polished([c], problem, say, rnd, veto)
         for c in passing:
-            if c.remaining and not any(c is a for a in added):
+            if c.remaining and not any(c is a for a in added) and not core_params.is_core(c.name):
                 c.reason = ("does not remove the structure it acts on: still " + "; ".join(
                     _where(c.struct, k) for k in c.remaining) + " with it (an effect of another form, or a "
                     "second effect, is at work: left unexplained)")
