@@ -7,7 +7,7 @@ Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
 a, b, c, a_r, b_r, c_r, C_r ("the same target SEs"). The adaptive loop (omnibench.bench.adaptive,
 the same code `campaign --adaptive` runs) then plans, simulates the planned procedure files
-(`Observations.simulated` with those files: the model with the simulated board's sensor noise),
+(`simcampaign.simulated_observations` with those files: the model with the simulated board's sensor noise),
 fits and re-plans until the targets are met. Both are priced with the same cost model: robot
 seconds of the steps (sweep holds at min_hold + window), operator actions (flips, wheel swaps,
 payload changes, tape measurements) including the return to the rest state.
@@ -47,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     from omnibench.analysis.design.space import Costs, sequence_actions
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
     from omnibench.bench.adaptive import adaptive_loop
     from omnibench.bench.campaign import procedure_files
     from omnibench.effects import EFFECTS
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     fixed_obs: dict[tuple[str, int], object] = {}
     for wname, weff in worlds:
         for seed in seeds:
-            obs = Observations.simulated(truth, world_effects=weff, seed=7000 + seed,
+            obs = simulated_observations(truth, world_effects=weff, seed=7000 + seed,
                                          procedures=["sweep", "forward", "lateral"])
             fixed_obs[(wname, seed)] = obs
             fixed_fits[(wname, seed)] = fit(robot, obs)
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                 out = []
                 for n, (proc, path) in enumerate(written):
                     t = TABLE[proc]
-                    out.append(Observations.simulated(truth, world_effects=_weff, procedures=[t], files={t: path},
+                    out.append(simulated_observations(truth, world_effects=_weff, procedures=[t], files={t: path},
                                                       seed=100000 * (_seed + 1) + 100 * r + n, run_prefix=f"r{r}-{n}"))
                 return Observations.concat(out)
 

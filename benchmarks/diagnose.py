@@ -1,19 +1,32 @@
-"""Benchmark of `omnibench diagnose` on simulated campaigns (issue 6).
+"""Benchmark of `omnibench diagnose` on simulated campaigns, on either world generator.
 
-For every effect of the library: the world carries it at its realistic size
-(omnibench/effects/library.py `example`) in the campaign that reveals it
-(omnibench/analysis/diagnosis/campaign.py `REVEALING`), with a different sensor-noise seed
-each time. Printed per effect: detection rate (selected first), how often the fitted value
-is within 3 SE of the truth, the median held-out error ratio after/before, and wrong
-first picks. Then the false-addition rate on clean worlds (no undeclared effect), over the
-`CLEAN` campaigns. The library includes the command-timing effects (effects/timing.py:
-command_latency, serial_command_latency, per_wheel_latency, actuator_lag), revealed by a square
-wave logged every 20 ± 5 ms; the wheel inertia is offered as a core-parameter re-estimate wherever step
-responses are present (a false re-estimate on a clean world counts as a false addition).
+Worlds (omnibench/analysis/diagnosis/campaign.py): every library effect at its realistic size
+(omnibench/effects/library.py `example`) in the campaign that reveals it (`REVEALING`), the
+alternative forms the independent physics has (`FORMS`), two effects at once (`PAIRS`),
+effects outside the library (`OUT_OF_LIBRARY`) and clean worlds (`CLEAN`), each with a
+different sensor-noise seed per run. The library includes the command-timing effects
+(effects/timing.py: command_latency, serial_command_latency, per_wheel_latency, actuator_lag), revealed
+by a square wave logged every 20 ± 5 ms; the wheel inertia is offered as a core-parameter
+re-estimate wherever step responses are present (a false re-estimate on a clean world counts
+as a false addition).
 
-    .venv/bin/python benchmarks/diagnose.py                 # 20 seeds per effect, 20 clean worlds
-    .venv/bin/python benchmarks/diagnose.py --seeds 5 --effects stribeck_friction,driver_deadband
-    .venv/bin/python benchmarks/diagnose.py --json results.json
+    --generator independent   physics written for testing only (omnibench/worlds/independent.py:
+                              exact stick-slip, another integrator, other effect forms): the
+                              figure that measures generalisation. The default.
+    --generator model         the fit's own simulator (self-consistency)
+
+Printed per world: right effect first, fitted size within 3 SE of the truth (over all runs;
+n/a for a form whose size parameter the library's form does not share), no spurious second addition, the median held-out error ratio in the
+procedure it shows in; pairs: both found; out-of-library: "unexplained" with nothing added;
+clean: worlds with any addition.
+
+    .venv/bin/python benchmarks/diagnose.py --seeds 10 --clean 20 --jobs 2
+    .venv/bin/python benchmarks/diagnose.py --seeds 2 --only stribeck_friction,pair:battery+stribeck
+    .venv/bin/python benchmarks/diagnose.py --generator model --seeds 3 --json results.json
+    .venv/bin/python benchmarks/diagnose.py --from-json results.json     # figures of an interrupted run
+
+Jobs run seed-major (every world's first seed, then every world's second, ...), and --json is
+rewritten after each diagnosis, so an interrupted run still gives every world the same seeds.
 """
 
 from __future__ import annotations
@@ -23,72 +36,176 @@ import json
 import statistics
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral",
             "energy_trajectories": "energy", "step_response": "step_response"}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", type=int, default=20, help="simulated campaigns per effect (default 20)")
-    ap.add_argument("--clean", type=int, default=20, help="clean worlds (default 20)")
-    ap.add_argument("--effects", default="", help="comma-separated subset of the library")
-    ap.add_argument("--json", default="", help="also write the results to this JSON file")
-    args = ap.parse_args(argv)
+def _worlds(generator: str) -> list[tuple[str, str, object, dict, tuple[str, ...], dict]]:
+    """(kind, label, spec, world effects, expected effect names, true values {effect.param: v})."""
+    from omnibench.analysis.diagnosis.campaign import CLEAN, FORMS, OUT_OF_LIBRARY, PAIRS, REVEALING
+    from omnibench.effects import EFFECTS
 
+    out = []
+    for name, spec in REVEALING.items():
+        eff = EFFECTS[name]
+        out.append(("effect", name, spec, eff.world(), (name,), {f"{name}.{p}": eff.example[p] for p in eff.size_params}))
+    if generator == "independent":
+        for label, (spec, world, truth) in FORMS.items():
+            out.append(("effect", label, spec, world, (label.split(":")[0],), truth))
+    for label, (spec, world) in PAIRS.items():
+        out.append(("pair", label, spec, world, tuple(world), {}))
+    if generator == "independent":
+        for label, (spec, world) in OUT_OF_LIBRARY.items():
+            out.append(("outside", label, spec, world, (), {}))
+    for k, spec in enumerate(CLEAN):
+        out.append(("clean", f"clean {k}", spec, {}, (), {}))
+    return out
+
+
+def _one(job: tuple) -> dict:
+    """Diagnose one seeded world; a small dict of what happened."""
+    kind, label, spec, world, expected, truth, seed, generator = job
     from omnibench.analysis.diagnosis import diagnose
-    from omnibench.analysis.diagnosis.campaign import CLEAN, REVEALING, campaign
+    from omnibench.analysis.diagnosis.campaign import campaign
     from omnibench.effects import EFFECTS
     from omnibench.model import default_robot
 
     robot = default_robot()
-    names = [n.strip() for n in args.effects.split(",") if n.strip()] or list(EFFECTS)
-    unknown = [n for n in names if n not in EFFECTS]
-    if unknown:
-        print(f"unknown effect(s): {', '.join(unknown)}; known: {', '.join(EFFECTS)}", file=sys.stderr)
-        return 2
-    results: dict = {"effects": {}, "clean": {}}
-    print(f"{'effect':<20} {'detected':>9} {'in 3 SE':>8} {'err after/before':>17} {'s/run':>6}  wrong first picks")
-    for name in names:
-        eff, spec = EFFECTS[name], REVEALING[name]
-        det = cover = 0
-        ratios, wrong = [], {}
-        t0 = time.time()
-        for seed in range(args.seeds):
-            d = diagnose(robot, campaign(robot, spec, eff.world(), seed=1000 + seed))
-            first = d.selected[0].name if d.selected else None
-            if first == name:
-                det += 1
-                c = d.selected[0]
-                cover += all(abs(c.values[f"{name}.{p}"] - eff.example[p]) <= 3 * c.se[f"{name}.{p}"] for p in eff.fit)
-            else:
-                wrong[str(first)] = wrong.get(str(first), 0) + 1
-            procs = [TABLE_OF[p] for p in eff.procedures if TABLE_OF[p] in d.before]
-            for p in procs:
-                ratios.append(d.after[p]["nrmse"] / d.before[p]["nrmse"])
-        dt = (time.time() - t0) / max(args.seeds, 1)
+    t0 = time.time()
+    d = diagnose(robot, campaign(robot, spec, world, seed=seed, generator=generator))
+    names = [c.name for c in d.selected]
+    covered = None
+    if kind == "effect" and names and names[0] == expected[0]:
+        c = d.selected[0]
+        checked = [k for k in truth if k in c.values]
+        covered = all(abs(c.values[k] - truth[k]) <= 3 * c.se[k] for k in checked) if checked else None
+    ratios = []
+    for name in expected:
+        if name in EFFECTS:
+            ratios += [d.after[TABLE_OF[p]]["nrmse"] / d.before[TABLE_OF[p]]["nrmse"]
+                       for p in EFFECTS[name].procedures if TABLE_OF[p] in d.before]
+    return {"kind": kind, "label": label, "selected": names, "covered": covered, "ratios": ratios,
+            "unexplained": len(d.unexplained), "seconds": time.time() - t0}
+
+
+class _Serial:
+    """ProcessPoolExecutor's map in this process (--jobs 1)."""
+
+    def __enter__(self) -> "_Serial":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def map(self, fn, items):
+        return map(fn, items)
+
+
+def summarise(results: list[dict], generator: str, seconds: float) -> dict:
+    """Print the table of per-world figures from the diagnoses' results; the summary dict."""
+    by: dict[str, list[dict]] = {}
+    for r in results:
+        by.setdefault(r["label"], []).append(r)
+    print(f"generator: {generator}; {len(results)} diagnoses in {seconds:.0f} s")
+    print(f"{'world':<40} {'right first':>11} {'in 3 SE':>8} {'no 2nd':>7} {'err ratio':>9}  picks")
+    summary: dict = {"generator": generator, "worlds": {}}
+    clean_n = clean_added = 0
+    for label, rs in by.items():
+        kind, n = rs[0]["kind"], len(rs)
+        picks: dict[str, int] = {}
+        for r in rs:
+            key = "+".join(r["selected"]) or "-"
+            picks[key] = picks.get(key, 0) + 1
+        pick_s = ", ".join(f"{k} x{v}" for k, v in sorted(picks.items(), key=lambda kv: -kv[1]))
+        ratios = [x for r in rs for x in r["ratios"]]
         med = statistics.median(ratios) if ratios else float("nan")
-        results["effects"][name] = {"seeds": args.seeds, "detected": det, "within_3se": cover,
-                                    "median_error_ratio": med, "wrong_first": wrong}
-        wrong_s = ", ".join(f"{k} x{v}" for k, v in wrong.items()) or "-"
-        print(f"{name:<20} {det:>4}/{args.seeds:<4} {cover:>4}/{det:<3} {med:>17.3f} {dt:>6.1f}  {wrong_s}", flush=True)
-    added = 0
-    worlds_with = 0
-    picks: dict[str, int] = {}
-    for seed in range(args.clean):
-        spec = CLEAN[seed % len(CLEAN)]
-        d = diagnose(robot, campaign(robot, spec, {}, seed=5000 + seed))
-        added += len(d.selected)
-        worlds_with += bool(d.selected)
-        for c in d.selected:
-            picks[c.name] = picks.get(c.name, 0) + 1
-    results["clean"] = {"worlds": args.clean, "worlds_with_addition": worlds_with, "additions": added, "picks": picks}
-    rate = worlds_with / max(args.clean, 1)
-    print(f"clean worlds: {worlds_with}/{args.clean} with a false addition ({100 * rate:.0f} %), "
-          f"{added} addition(s){': ' + ', '.join(f'{k} x{v}' for k, v in picks.items()) if picks else ''}")
+        row = {"kind": kind, "runs": n, "picks": picks, "median_error_ratio": med}
+        if kind == "effect":
+            want = label.split(":")[0].split(" ")[0]
+            first = sum(bool(r["selected"]) and r["selected"][0] == want for r in rs)
+            cover = sum(bool(r["covered"]) for r in rs)
+            checked = sum(r["covered"] is not None for r in rs) or not first
+            alone = sum(len(r["selected"]) <= 1 for r in rs)
+            row.update(right_first=first, within_3se=cover if checked else None, no_second=alone)
+            cover_s = f"{cover:>4}/{n:<3}" if checked else f"{'n/a':>8}"
+            print(f"{label:<40} {first:>5}/{n:<5} {cover_s} {alone:>3}/{n:<3} {med:>9.3f}  {pick_s}")
+        elif kind == "pair":
+            want = set(label.split(":")[1].split("+")) if ":" in label else set()
+            both = sum(want <= set(r["selected"]) for r in rs)
+            row.update(both_found=both)
+            print(f"{label:<40} both found {both:>3}/{n:<3} {'':>12} {med:>9.3f}  {pick_s}")
+        elif kind == "outside":
+            ok = sum((not r["selected"]) and r["unexplained"] > 0 for r in rs)
+            row.update(unexplained_nothing_added=ok)
+            print(f"{label:<40} unexplained, nothing added {ok:>3}/{n:<3}  {pick_s}")
+        else:
+            clean_n += n
+            clean_added += sum(bool(r["selected"]) for r in rs)
+            row.update(with_addition=sum(bool(r["selected"]) for r in rs))
+        summary["worlds"][label] = row
+    if clean_n:
+        picks = {}
+        for r in results:
+            if r["kind"] == "clean":
+                for c in r["selected"]:
+                    picks[c] = picks.get(c, 0) + 1
+        print(f"clean worlds: {clean_n - clean_added}/{clean_n} with no addition"
+              f"{' (added: ' + ', '.join(f'{k} x{v}' for k, v in picks.items()) + ')' if picks else ''}")
+        summary["clean"] = {"worlds": clean_n, "no_addition": clean_n - clean_added, "picks": picks}
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=10, help="simulated campaigns per world (default 10)")
+    ap.add_argument("--clean", type=int, default=20, help="clean worlds in all (default 20)")
+    ap.add_argument("--generator", default="independent", choices=("independent", "model"))
+    ap.add_argument("--only", default="", help="comma-separated world labels (as printed) to run")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--json", default="", help="also write the results to this JSON file")
+    ap.add_argument("--from-json", default="", help="only print the figures of a (possibly interrupted) run's JSON")
+    args = ap.parse_args(argv)
+    if args.from_json:
+        with open(args.from_json, encoding="utf-8") as fh:
+            runs = json.load(fh)["runs"]
+        summarise(runs, args.generator, sum(r["seconds"] for r in runs))
+        return 0
+    worlds = _worlds(args.generator)
+    only = {s.strip() for s in args.only.split(",") if s.strip()}
+    if only:
+        unknown = only - {w[1] for w in worlds}
+        if unknown:
+            print(f"unknown world(s): {', '.join(sorted(unknown))}; known: {', '.join(w[1] for w in worlds)}",
+                  file=sys.stderr)
+            return 2
+        worlds = [w for w in worlds if w[1] in only]
+    jobs = []
+    n_clean = sum(w[0] == "clean" for w in worlds)
+    for w in worlds:
+        if w[0] == "clean":
+            k = int(w[1].split()[-1])
+            seeds = [5000 + s for s in range(args.clean) if s % max(n_clean, 1) == k % max(n_clean, 1)]
+        else:
+            seeds = [1000 + s for s in range(args.seeds)]
+        jobs += [(k, (*w, seed, args.generator)) for k, seed in enumerate(seeds)]
+    # seed-major: cut short, every world has had the same number of seeds
+    jobs = [j for _, j in sorted(jobs, key=lambda kj: kj[0])]
+    t0 = time.time()
+    results = []
+    with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else _Serial() as ex:
+        for r in ex.map(_one, jobs):
+            results.append(r)
+            print(f"  [{len(results)}/{len(jobs)} {time.time() - t0:.0f} s] {r['label']}: "
+                  f"{'+'.join(r['selected']) or '-'}", file=sys.stderr, flush=True)
+            if args.json:  # partial results survive an interrupted run
+                with open(args.json, "w", encoding="utf-8") as fh:
+                    json.dump({"runs": results}, fh)
+    summary = summarise(results, args.generator, time.time() - t0)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(results, fh, indent=2)
+            json.dump({"summary": summary, "runs": results}, fh, indent=2)
     return 0
 
 

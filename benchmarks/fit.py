@@ -21,14 +21,14 @@ import numpy as np
 
 def monte_carlo(robot, truth, seeds, procedures, label):
     from omnibench.analysis.fitting import fit
-    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
 
     est: dict[str, list[float]] = {}
     ses: dict[str, list[float]] = {}
     cover: dict[str, list[bool]] = {}
     times = []
     for seed in seeds:
-        obs = Observations.simulated(truth, seed=seed, procedures=procedures)
+        obs = simulated_observations(truth, seed=seed, procedures=procedures)
         t0 = time.perf_counter()
         res = fit(robot, obs, procedures=[p for p in procedures if p != "energy"])
         times.append(time.perf_counter() - t0)
@@ -58,13 +58,13 @@ def main() -> None:
     args = ap.parse_args()
 
     from omnibench.analysis.fitting import fit
-    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
     from omnibench.model import default_robot
 
     robot = default_robot()
     truth = robot.replace(a=0.02, b=0.45, c=0.015, a_r=2.5, b_r=0.8, c_r=0.02, C_r=0.03)
     # warm up the compiled kernel (first-call compile is not the fit's cost)
-    obs = Observations.simulated(truth, seed=0, procedures=["sweep", "forward", "lateral"])
+    obs = simulated_observations(truth, seed=0, procedures=["sweep", "forward", "lateral"])
     fit(robot, obs.select(procedures=["sweep"]), ["a"], procedures=["sweep"])
     t0 = time.perf_counter()
     res = fit(robot, obs)

@@ -4,7 +4,7 @@ Reads run files (through omnibench.runs), never the port. The estimators see `Ob
 (omnibench.analysis.observations), not run directories.
 
     from omnibench.analysis import Observations, fit, FitResult
-    obs = Observations.from_runs(["runs/"])          # or Observations.simulated(robot, seed=1)
+    obs = Observations.from_runs(["runs/"])          # or simcampaign.simulated_observations(robot, seed=1)
     result = fit(robot, obs)                           # free=None: what the procedures measure
     print(result.table())
 """

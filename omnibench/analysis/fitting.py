@@ -108,7 +108,12 @@ def param_bounds(robot: Any, name: str) -> tuple[float, float]:
     if "." in name:
         _, _, spec = _effect_param(robot, name)
         return float(spec.lower), float(spec.upper)
-    if name in CORE or name == "I_0":
+    if name in CORE:  # the paper's terms' physical ranges (omnibench/model/friction.py)
+        from omnibench.model.terms import all_terms
+
+        spec = {p.name: p for t in all_terms() if t.core for p in t.params}[name]
+        return float(spec.lower), float(spec.upper)
+    if name == "I_0":
         return 0.0, math.inf
     if name == "eta":
         return 1e-3, 1.0

@@ -29,7 +29,7 @@ the simulation-based fits replay:
 I_batt (A); columns are NaN where the board did not log them.
 
 Build it from run directories (`Observations.from_runs`, through omnibench.runs.read_run) or
-straight from the model (`Observations.simulated`: same procedures, same estimators, sensor
+straight from the model (`omnibench.analysis.simcampaign.simulated_observations`: same procedures, same estimators, sensor
 noise of the simulated board) for tests and benchmarks.
 """
 
@@ -228,22 +228,6 @@ class Observations:
             seen.add(rid)
             items.append(_from_run(run, robot, rid))
         return cls.concat(items)
-
-    # ----------------------------------------------------------------------------- simulated
-    @classmethod
-    def simulated(cls, robot: Any, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
-                  procedures: Sequence[str] = ("sweep", "forward", "lateral", "energy"),
-                  seed: int = 0, current: bool = True, files: Mapping[str, str | Path] | None = None,
-                  run_prefix: str = "sim") -> "Observations":
-        """A campaign simulated straight from the model (no board, no run files): the shipped
-        procedure files (or `files`: procedure -> TOML path) expanded for `robot`, each step
-        simulated with `world_effects` added to the world, then read through the same sensor
-        models (encoder floor quantisation, current noise 0.01 A, tape noise 2 mm) and the
-        same estimators as a real run. `current=False` leaves motor currents out of the sweep."""
-        from omnibench.analysis.simcampaign import simulate_campaign
-
-        return simulate_campaign(cls, robot, world_effects=world_effects or {}, procedures=procedures,
-                                 seed=seed, current=current, files=files, run_prefix=run_prefix)
 
 
 # --------------------------------------------------------------------------------- readers

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE, ENERGY_COLUMNS, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, TRACE_COLUMNS,
-    quantisation_se, slope_fit, timed_row,
+    Observations, quantisation_se, slope_fit, timed_row,
 )
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
@@ -68,13 +68,40 @@ def _sensors(rng: np.random.Generator, res, b: int, cpr: float, current: bool, t
     return pd.DataFrame(out, columns=TRACE_COLUMNS)
 
 
-def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[str, float]],
+def plant_simulator(generator: str = "model") -> Callable:
+    """`simulate_batch` of the world generator: "model" (omnibench.model, the fit's own
+    simulator) or "independent" (omnibench.worlds.independent: physics written for testing only)."""
+    if generator == "model":
+        return simulate_batch
+    if generator == "independent":
+        from omnibench.worlds import independent
+
+        return independent.simulate_batch
+    raise ValueError(f"unknown world generator {generator!r}; use model or independent")
+
+
+def simulated_observations(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
+                           procedures: Sequence[str] = ("sweep", "forward", "lateral", "energy"),
+                           seed: int = 0, current: bool = True, files: Mapping[str, str | Path] | None = None,
+                           run_prefix: str = "sim", generator: str = "model") -> Observations:
+    """A campaign simulated without board or run files: the shipped procedure files (or `files`:
+    procedure -> TOML path) expanded for `robot`, each step simulated by `generator` with
+    `world_effects` added to the world, then read through the same sensor models (encoder floor
+    quantisation, current noise 0.01 A, tape noise 2 mm) and the same estimators as a real run.
+    `current=False` leaves motor currents out of the sweep."""
+    return simulate_campaign(robot, world_effects=world_effects or {}, procedures=procedures, seed=seed,
+                             current=current, files=files, run_prefix=run_prefix,
+                             simulate=plant_simulator(generator))
+
+
+def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]],
                       procedures: Sequence[str], seed: int, current: bool,
-                      files: Mapping[str, str | Path] | None, run_prefix: str):
-    """See Observations.simulated."""
+                      files: Mapping[str, str | Path] | None, run_prefix: str,
+                      simulate: Callable = simulate_batch) -> Observations:
+    """See simulated_observations (`simulate`: the world generator's simulate_batch)."""
     rng = np.random.default_rng(seed)
     cpr = float(robot.counts_per_rev)
-    obs = cls()
+    obs = Observations()
     every = int(round(TELEMETRY_DT / PHYSICS_DT))
     for proc in procedures:
         if proc not in _FILE_OF:
@@ -82,13 +109,13 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
         plan = _plan(proc, robot, files)
         rid = f"{run_prefix}-{proc}-{seed}"
         obs.runs[rid] = {"procedure": plan.procedure, "path": None, "status": "complete",
-                         "counts_per_rev": cpr, "source": "Observations.simulated", "imported": False,
+                         "counts_per_rev": cpr, "source": "simulated_observations", "imported": False,
                          "duty_timing": "from_sample"}
         steps = plan.steps
         if proc == "sweep":
             scen = [Scenario(mode="upside_down", wheel_mass=s.world.wheel_mass, effects=world_effects) for s in steps]
             U = np.array([[s.schedule[0][1]] for s in steps])
-            res = simulate_batch(robot, scen, [0.0], U, SWEEP_HOLD, dt=PHYSICS_DT, record_every=every)
+            res = simulate(robot, scen, [0.0], U, SWEEP_HOLD, dt=PHYSICS_DT, record_every=every)
             rows = []
             floor = quantisation_se(cpr)
             for b, s in enumerate(steps):
@@ -117,7 +144,7 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
             rows = []
             for (dur, settle), idx in groups.items():
                 U = np.array([[steps[b].schedule[0][1], (0.0, 0.0, 0.0, 0.0)] for b in idx])
-                res = simulate_batch(robot, [scen[b] for b in idx], [0.0, dur], U, dur + settle, dt=PHYSICS_DT,
+                res = simulate(robot, [scen[b] for b in idx], [0.0, dur], U, dur + settle, dt=PHYSICS_DT,
                                      record_every=every)
                 for n, b in enumerate(idx):
                     s = steps[b]
@@ -140,7 +167,7 @@ def simulate_campaign(cls, robot: Any, *, world_effects: Mapping[str, Mapping[st
             for s in steps:
                 t_cmd = [t for t, _ in s.schedule] + [s.duration]
                 U = np.array([[d for _, d in s.schedule] + [(0.0, 0.0, 0.0, 0.0)]])
-                res = simulate_batch(robot, Scenario(mode="ground", payload=s.world.payload, effects=world_effects),
+                res = simulate(robot, Scenario(mode="ground", payload=s.world.payload, effects=world_effects),
                                      t_cmd, U, s.duration + s.settle, dt=PHYSICS_DT, record_every=every)
                 tr = _sensors(rng, res, 0, cpr, current, t_cmd, U[0])
                 obs.traces[(rid, s.index)] = tr

@@ -4,8 +4,8 @@ All torques are on the wheel axle (referred to the wheel shaft, like the paper's
 positive in the sense of positive wheel speed. `sign_eps` is the model's regularised sign
 (width `sign_width_phi`, rad/s), so every Coulomb-type term is smooth at zero speed.
 
-  stribeck_friction   tau = -(1 + c_s F_N) b_s exp(-(phi_dot / w_s)^2) sign(phi_dot)   (sign rounded over max(eps, w_s/2))
-  asymmetric_coulomb  tau = -db |sign(phi_dot)|        (Coulomb b + db forward, b - db backward)
+  stribeck_friction   tau = -(1 + c_s F_N) b_s exp(-|phi_dot / w_s|^shape) sign(phi_dot)   (ground: sign rounded over max(eps, w_s/2))
+  asymmetric_coulomb  tau = -(1 + c_db F_N) db |sign(phi_dot)|   (Coulomb b + db forward, b - db backward)
   per_wheel_friction  tau_i = -(da_i phi_dot_i + db_i sign(phi_dot_i))   (one gearbox stiffer than the others)
   quadratic_drag      tau = -d_q |phi_dot| phi_dot     (lubricant churning, motor fan windage)
   cogging_torque      tau = -A_c sin(n_c phi + phase)  (conservative ripple: cogging, roller hand-over)
@@ -20,34 +20,36 @@ import math
 
 from numba import njit
 
-from omnibench.model.context import CTX_SIGN_PHI
+from omnibench.model.context import CTX_MODE, CTX_SIGN_PHI
 from omnibench.model.smooth import sign_eps
 from omnibench.model.terms import Param, Term, register
 
 
 @njit(cache=True)
 def stribeck_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
-    """-(1 + c_s F_N) b_s exp(-(phi_dot/w_s)^2) sign(phi_dot), N m."""
-    b_s, w_s, c_s = p[0], p[1], p[2]
+    """-(1 + c_s F_N) b_s exp(-|phi_dot/w_s|^shape) sign(phi_dot), N m."""
+    b_s, w_s, c_s, shape = p[0], p[1], p[2], p[3]
     if b_s == 0.0:
         return
-    # Rounded over max(sign width, w_s / 2): keeps the term no stiffer at zero speed than the
-    # paper's Coulomb friction, so the integrator's step stays stable (the hump peaks near w_s/2).
-    eps = max(ctx[CTX_SIGN_PHI], 0.5 * w_s)
+    # On the ground rounded over max(sign width, w_s / 2): keeps the term no stiffer at zero
+    # speed than the paper's Coulomb friction (the hump peaks near w_s/2). Upside down the sign
+    # is exact like every dry term there (the kernel's stick-slip decides at zero speed).
+    eps = max(ctx[CTX_SIGN_PHI], 0.5 * w_s * (1.0 - ctx[CTX_MODE]))
     for j in range(4):
-        x = phi_dot[j] / w_s
-        out[j] = -(1.0 + c_s * FN[j]) * b_s * math.exp(-x * x) * sign_eps(phi_dot[j], eps)
+        x = abs(phi_dot[j]) / w_s
+        out[j] = -(1.0 + c_s * FN[j]) * b_s * math.exp(-(x ** shape)) * sign_eps(phi_dot[j], eps)
 
 
 @njit(cache=True)
 def asymmetric_coulomb_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
-    """-db |sign(phi_dot)|: Coulomb friction b + db turning forward, b - db turning backward, N m."""
-    db = p[0]
+    """-(1 + c_db F_N) db |sign(phi_dot)|: Coulomb friction b + db turning forward, b - db
+    turning backward, scaling with the axle load like b, N m."""
+    db, c_db = p[0], p[1]
     if db == 0.0:
         return
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
-        out[j] = -db * abs(sign_eps(phi_dot[j], eps))
+        out[j] = -(1.0 + c_db * FN[j]) * db * abs(sign_eps(phi_dot[j], eps))
 
 
 @njit(cache=True)
@@ -83,13 +85,15 @@ stribeck_friction = register(
     Term(
         name="stribeck_friction",
         title="Stribeck friction (static friction above Coulomb, decaying with speed)",
-        doc="tau = -(1 + c_s F_N) b_s exp(-(phi_dot/w_s)^2) sign(phi_dot): breakaway friction of "
-        "the gear mesh and bearings exceeds the sliding (Coulomb) value and decays over the "
-        "Stribeck speed w_s. Torque domain, so it grows with the axle load like the paper's b.",
+        doc="tau = -(1 + c_s F_N) b_s exp(-|phi_dot/w_s|^shape) sign(phi_dot): breakaway friction "
+        "of the gear mesh and bearings exceeds the sliding (Coulomb) value and decays over the "
+        "Stribeck speed w_s (shape 2: Gaussian decay, 1: exponential). Torque domain, so it grows "
+        "with the axle load like the paper's b.",
         params=(
             Param("b_s", "N*m", 0.15, "extra breakaway (static minus Coulomb) torque", 0.0, 2.0),
             Param("w_s", "rad/s", 1.0, "Stribeck speed: width of the low-speed hump", 0.05, 20.0),
             Param("c_s", "1/N", 0.01, "load dependence of the breakaway torque (like c)", 0.0, 1.0),
+            Param("shape", "1", 2.0, "decay exponent: 2 Gaussian, 1 exponential", 0.5, 4.0),
         ),
         hooks={"wheel_torque": stribeck_torque},
         reveals="upside_down_sweep (low duties, both wheel sets), step_response (start-up)",
@@ -100,9 +104,11 @@ asymmetric_coulomb = register(
     Term(
         name="asymmetric_coulomb",
         title="Direction-asymmetric Coulomb friction",
-        doc="tau = -db |sign(phi_dot)|: the gearbox's dry friction is b + db turning forward and "
-        "b - db turning backward (worm/helical gear thrust, brush timing, seal lip direction).",
-        params=(Param("db", "N*m", 0.05, "half the forward-minus-backward Coulomb torque", -1.0, 1.0),),
+        doc="tau = -(1 + c_db F_N) db |sign(phi_dot)|: the gearbox's dry friction is b + db turning "
+        "forward and b - db turning backward (worm/helical gear thrust, brush timing, seal lip "
+        "direction); dry friction, so it grows with the axle load like the paper's b.",
+        params=(Param("db", "N*m", 0.05, "half the forward-minus-backward Coulomb torque", -1.0, 1.0),
+                Param("c_db", "1/N", 0.01, "load dependence of the asymmetry (like c)", 0.0, 1.0)),
         hooks={"wheel_torque": asymmetric_coulomb_torque},
         reveals="upside_down_sweep in both directions (forward steady speeds lower than backward)",
     )

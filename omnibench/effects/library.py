@@ -9,7 +9,7 @@ and which experiment separates it from look-alikes (`separates`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 from omnibench.model.terms import Term, get_term
@@ -27,10 +27,25 @@ class Effect:
     procedures: tuple[str, ...] = ()
     variable: str = "speed"
     separates: Mapping[str, str] = field(default_factory=dict)
+    #: forms the effect takes in real hardware: form name -> held parameter values; diagnosis
+    #: fits each and reports which the data chose and by how much (the first is the default)
+    forms: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def with_form(self, form: str) -> "Effect":
+        """This effect with `form`'s parameters held (unchanged for '' or an effect without forms)."""
+        if not form:
+            return self
+        return replace(self, fixed={**self.fixed, **self.forms[form]})
 
     @property
     def term(self) -> Term:
         return get_term(self.name)
+
+    @property
+    def size_params(self) -> tuple[str, ...]:
+        """The fitted parameters that say how big the effect is (zero: absent), not its shape."""
+        specs = {p.name: p for p in self.term.params}
+        return tuple(p for p in self.fit if specs[p].lower <= 0.0)
 
     @property
     def n_params(self) -> int:
@@ -54,18 +69,20 @@ _E = Effect
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in (
-        _E("stribeck_friction", fit=("b_s",), example={"b_s": 0.25}, start={"b_s": 0.05},
-           fixed={"w_s": 1.0, "c_s": 0.01}, procedures=("upside_down_sweep", "step_response"),
+        _E("stribeck_friction", fit=("b_s", "w_s"), example={"b_s": 0.25, "w_s": 1.0}, start={"b_s": 0.05, "w_s": 1.0},
+           fixed={"c_s": 0.01, "shape": 2.0}, procedures=("upside_down_sweep", "step_response"),
+           forms={"Gaussian decay": {"shape": 2.0}, "exponential decay": {"shape": 1.0}},
            variable="speed",
            separates={"driver_deadband": "repeat the sweep with a heavier wheel set: Stribeck friction "
                       "grows with the axle load, a deadband does not; or log the motor current: a "
                       "deadband leaves the current-speed relation unchanged"}),
         _E("driver_deadband", fit=("u_0",), example={"u_0": 0.03}, start={"u_0": 0.01},
-           fixed={"w_u": 0.002}, procedures=("upside_down_sweep", "step_response"), variable="duty",
+           fixed={"w_u": 0.002, "cut": 0.0}, procedures=("upside_down_sweep", "step_response"), variable="duty",
+           forms={"shifted": {"cut": 0.0}, "cut": {"cut": 1.0}},
            separates={"stribeck_friction": "repeat the sweep with a heavier wheel set (deadband is "
                       "load independent) or log the motor current (deadband does not change it)"}),
-        _E("asymmetric_coulomb", fit=("db",), example={"db": 0.06}, start={"db": 0.0},
-           procedures=("upside_down_sweep",), variable="direction",
+        _E("asymmetric_coulomb", fit=("db",), example={"db": 0.06}, start={"db": 0.0}, fixed={"c_db": 0.01},
+           procedures=("upside_down_sweep", "forward_runs"), variable="direction",
            separates={"per_wheel_friction": "run the sweep in both directions",
                       "floor_slope": "run the sweep upside down (a slope cannot act there, gearbox "
                       "asymmetry does) or repeat the forward runs with a payload (the slope force grows "
@@ -92,6 +109,7 @@ EFFECTS: dict[str, Effect] = {
            procedures=("energy_trajectories",), variable="time"),
         _E("winding_heating", fit=("theta",), example={"theta": 25.0}, start={"theta": 5.0},
            fixed={"tau_th": 20.0, "alpha_cu": 0.00393}, procedures=("step_response",),
+           forms={f"tau_th {t:g} s": {"tau_th": t} for t in (20.0, 5.0, 10.0, 40.0, 80.0)},
            variable="time"),
     )
 }

@@ -52,9 +52,9 @@ transmission_friction = register(
         doc="tau_fric = (1 + c F_N)(a phi_dot + b sign(phi_dot)): gearbox and motor losses; "
         "c scales them with the axle load (paper II.i).",
         params=(
-            Param("a", "N*m*s/rad", 0.01, "viscous transmission friction", 0.0),
-            Param("b", "N*m", 0.5, "Coulomb transmission friction", 0.0),
-            Param("c", "1/N", 0.01, "load dependence of transmission friction", 0.0),
+            Param("a", "N*m*s/rad", 0.01, "viscous transmission friction", 0.0, 1.0),
+            Param("b", "N*m", 0.5, "Coulomb transmission friction", 0.0, 10.0),
+            Param("c", "1/N", 0.01, "load dependence of transmission friction", 0.0, 0.2),
         ),
         hooks={"wheel_torque": transmission_friction_torque},
         core=True,
@@ -69,9 +69,9 @@ roller_friction = register(
         doc="tau' = -(1 + c_r F_N)(a_r sigma + b_r sign(sigma)) along the roller in contact, "
         "with slip speed sigma = S v (paper II.ii). Zero in pure forward motion.",
         params=(
-            Param("a_r", "N*s/m", 2.0, "viscous roller-axis friction", 0.0),
-            Param("b_r", "N", 1.0, "Coulomb roller-axis friction", 0.0),
-            Param("c_r", "1/N", 0.01, "load dependence of roller friction", 0.0),
+            Param("a_r", "N*s/m", 2.0, "viscous roller-axis friction", 0.0, 200.0),
+            Param("b_r", "N", 1.0, "Coulomb roller-axis friction", 0.0, 100.0),
+            Param("c_r", "1/N", 0.01, "load dependence of roller friction", 0.0, 0.2),
         ),
         hooks={"roller_force": roller_friction_force},
         core=True,
@@ -85,7 +85,7 @@ rolling_resistance = register(
         title="Rolling resistance of the wheel",
         doc="tau_r = -F_N C_r r sign(phi_dot): hysteresis of wheel and floor (paper II.iii); "
         "absent upside down.",
-        params=(Param("C_r", "1", 0.02, "rolling resistance coefficient", 0.0),),
+        params=(Param("C_r", "1", 0.02, "rolling resistance coefficient", 0.0, 0.5),),
         hooks={"wheel_torque": rolling_resistance_torque},
         core=True,
         reveals="forward_runs",

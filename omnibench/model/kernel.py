@@ -71,6 +71,17 @@ AUX_NAMES = (
 NAUX = len(AUX_NAMES)
 
 METHOD_HEUN, METHOD_RK4 = 0, 1
+# Stick-slip upside down (each wheel is its own degree of freedom there). The Coulomb-type
+# terms see an exact sign (width EXACT_SIGN_WIDTH, far below any speed that matters), so a
+# slipping wheel feels its full dry friction at every speed, and sticking is a state the step
+# decides: a wheel whose speed reaches or crosses zero within a step is probed at
+# +/- STICK_PROBE with every other quantity as at the end of the step; if both accelerations
+# point back to zero (the drive does not overcome the breakaway torque, Filippov's sliding
+# condition), the wheel is stuck: its speed is set to exactly 0 and the kinetic energy removed
+# is booked as dissipated by the transmission friction, and its angle is that at the start of
+# the step. Otherwise it breaks away (or reverses).
+EXACT_SIGN_WIDTH = 1e-9  # rad/s
+STICK_PROBE = 1e-6  # rad/s
 # Trajectories per lane group: four doubles fill an AVX2 register. OMNIBENCH_KERNEL_WIDTH=1
 # gives the plain form (one trajectory per group, hooks as written): benchmarks/simulate.py
 # --compare-width measures what the lane form buys.
@@ -100,7 +111,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         ("X", nx), ("Xt", nx), ("dX", nx), ("acc", nx), ("aux", NAUX), ("rv", len(RV_NAMES)),
         ("Rm", 12), ("Sm", 12), ("Minv", 9), ("Mb", 9), ("ctx", C.CTX_SIZE), ("elec", C.ELEC_SIZE),
         ("FN", 4), ("u", 4), ("ucmd", 4), ("phid", 4), ("sig", 4), ("tau", 4), ("fr", 4), ("cur", 4),
-        ("tmp", 4), ("gw", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
+        ("tmp", 4), ("gw", 4), ("w0", 4), ("a0", 4), ("chk", 4), ("hold", 4), ("acc_p", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
         ("xs_none", 0),
     ]
     for k, term in enumerate(lay.terms):
@@ -371,7 +382,8 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
     groups = "\n\n\n".join(
         _GROUP_TEMPLATE.format(name=name, what=what, views=_indent("\n".join(views), 4), setup=_indent(setup, 4),
                                deriv=_indent(derivative(paper_only), 16), ground=C.MODE_GROUND, rk4=METHOD_RK4,
-                               n_int=paper_entries if paper_only else nx)
+                               n_int=paper_entries if paper_only else nx, probe=repr(STICK_PROBE),
+                               e_stick=NX_FIXED + lay.index("transmission_friction"), i_w=rv["I_w"])
         for name, what, paper_only in (
             ("_group", "every term", False),
             ("_group_paper", "the paper's terms only (every effect is off in the group)", True)))
@@ -535,16 +547,75 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                 ucmd[j * W + k] = U[ub[k], ci, j]
         for sub in range(n_sub):
             t = t0 + n * dt + sub * h
-            for stage in range(n_stages):
-                if stage == 0:
+            # Stick-slip upside down (see EXACT_SIGN_WIDTH). Passes s = 0, 1 probe the wheels at
+            # rest at the start of the step: those that stay stuck are held at zero speed through
+            # the step (no motion, no power); passes 2 .. n_stages + 1 are the integrator's
+            # stages; the last two probe the wheels whose speed reached or crossed zero inside
+            # the step, and stop those that stick.
+            probing = False
+            holding = False
+            if not ground:
+                for i in range(4 * W):
+                    w0[i] = X[10 * W + i]
+                    a0[i] = X[6 * W + i]
+                    hold[i] = 0.0
+                    chk[i] = 1.0 if w0[i] == 0.0 else 0.0
+                    if chk[i] != 0.0:
+                        probing = True
+            for s in range(n_stages + 4):
+                stage = s - 2
+                if stage < 0 or stage >= n_stages:
+                    if not probing:
+                        if stage < 0:
+                            continue
+                        break
+                    ts = t if stage < 0 else t + h
+                    side = {probe} if s % 2 == 0 else -{probe}
+                    for i in range({n_int} * W):
+                        Xt[i] = X[i]
+                    for i in range(4 * W):
+                        if chk[i] != 0.0:
+                            Xt[10 * W + i] = side
+                    stage = -1  # no auxiliary signals from a probe
+                elif stage == 0:
                     ts = t
                     for i in range({n_int} * W):
                         Xt[i] = X[i]
-                elif rk4 and stage < 3:
-                    ts = t + 0.5 * h
                 else:
-                    ts = t + h
+                    ts = t + 0.5 * h if rk4 and stage < 3 else t + h
+                    if not ground:
+                        # a stage that reached or crossed zero speed: the sign's jump is inside
+                        # the step (an explicit step would bounce off it), so probe at its end
+                        for i in range(4 * W):
+                            if w0[i] * Xt[10 * W + i] <= 0.0 and hold[i] == 0.0:
+                                chk[i] = 1.0
 {deriv}
+                if stage < 0:
+                    if s % 2 == 0:
+                        for i in range(4 * W):
+                            acc_p[i] = dX[10 * W + i]
+                    elif s == 1:
+                        # stuck wheels at the start: held at rest through the step
+                        for i in range(4 * W):
+                            if chk[i] != 0.0 and acc_p[i] <= 0.0 and dX[10 * W + i] >= 0.0:
+                                hold[i] = 1.0
+                                holding = True
+                            chk[i] = 0.0
+                        probing = False
+                    else:
+                        for j in range(4):
+                            for k in range(W):
+                                i = j * W + k
+                                if chk[i] != 0.0 and acc_p[i] <= 0.0 and dX[10 * W + i] >= 0.0:
+                                    w = X[10 * W + i]
+                                    X[{e_stick} * W + k] += 0.5 * rv[{i_w} * W + k] * w * w
+                                    X[10 * W + i] = 0.0
+                                    X[6 * W + i] = a0[i]  # a stuck wheel has not turned
+                    continue
+                if holding:
+                    for i in range(4 * W):
+                        if hold[i] != 0.0:
+                            dX[10 * W + i] = 0.0
                 if stage == 0:
                     if sub == 0 and n % rec_every == 0:
                         for k in range(n_valid):
@@ -575,6 +646,12 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                 else:
                     for i in range({n_int} * W):
                         X[i] += 0.5 * h * (acc[i] + dX[i])
+                if stage == n_stages - 1 and not ground:
+                    for i in range(4 * W):
+                        if w0[i] * X[10 * W + i] <= 0.0 and hold[i] == 0.0:
+                            chk[i] = 1.0
+                        if chk[i] != 0.0:
+                            probing = True
     for k in range(n_valid):
         for i in range(NX):
             XF[bs[k], i] = X[i * W + k]

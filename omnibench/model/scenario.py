@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping
 
 Mode = Literal["ground", "upside_down"]
@@ -29,3 +29,16 @@ class Scenario:
             raise ValueError("payload must not be negative")
         if self.wheel_mass is not None and (len(self.wheel_mass) != 4 or min(self.wheel_mass) <= 0):
             raise ValueError("wheel_mass must be 4 positive masses (kg)")
+
+
+def operator_change(sc: Scenario, mode: str | None = None, payload: float | None = None,
+                    wheel_mass: tuple[float, float, float, float] | None = None) -> Scenario:
+    """The scenario after an operator action (flip, payload, wheel swap); None keeps a setting."""
+    changes = {}
+    if mode is not None:
+        changes["mode"] = mode
+    if payload is not None:
+        changes["payload"] = float(payload)
+    if wheel_mass is not None:
+        changes["wheel_mass"] = tuple(float(m) for m in wheel_mass)
+    return replace(sc, **changes)

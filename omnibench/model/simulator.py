@@ -98,7 +98,10 @@ def _prepare(robot: Robot, scenario: Scenario, lay: Layout) -> Prepared:
     FN = normal_forces(robot, scenario)
     rv = np.array([
         0.0 if scenario.mode == "ground" else 1.0, mass, robot.I_w, robot.k_t, robot.k_e, robot.R_a,
-        robot.eta, robot.V_batt, robot.I_0, robot.L, robot.l, robot.r, robot.sign_width_phi,
+        robot.eta, robot.V_batt, robot.I_0, robot.L, robot.l, robot.r,
+        # upside down the wheels stick and slip with an exact sign (kernel.EXACT_SIGN_WIDTH);
+        # the robot's regularisation width is the ground's numerical device
+        robot.sign_width_phi if scenario.mode == "ground" else kernel.EXACT_SIGN_WIDTH,
         robot.sign_width_sigma, mass * GRAVITY, FN[0], FN[1], FN[2], FN[3],
     ])  # in the order of kernel.RV_NAMES
     x0_t, P_t, index = _template(lay)

@@ -4,7 +4,9 @@ The explicit integrators are stable while h * lambda stays below their limit
 (`simulator.STABILITY_LIMITS`), where lambda is the largest decay rate of the linearised
 dynamics. It is largest at rest: there the regularised sign x / sqrt(x^2 + eps^2) has slope
 1 / eps, so every Coulomb-type term (b, b_r, C_r, Stribeck, per-wheel friction...) acts like a
-viscous term of coefficient (size / eps). Rather than summing formulas term by term, this
+viscous term of coefficient (size / eps). That holds on the ground; upside down the wheels stick
+and slip with an exact sign (kernel.EXACT_SIGN_WIDTH), the dry friction is a constant torque
+while slipping and the stick probe decides the rest, so there the rates are taken just above zero. Rather than summing formulas term by term, this
 differentiates the kernel's own derivative at rest (central differences of one tiny Heun step),
 so an effect added later is counted without touching this module.
 
@@ -23,6 +25,8 @@ from omnibench.model.terms import Layout
 
 H_PROBE = 1e-9  # s: the probe step; its own bias is removed exactly (see _decay_rates)
 NUDGE = 1e-4  # speed perturbation as a fraction of the narrowest sign width it reaches
+UPSIDE_DOWN_NUDGE = 0.1  # rad/s: the nudge's reference speed upside down (x NUDGE)
+STICK_OFFSET = 10.0  # upside down: probe about this many nudges above zero speed
 GROUND_DOFS = (kernel.X_V, kernel.X_V + 1, kernel.X_V + 2)  # body velocity v1, v2, psi_dot
 UPSIDE_DOWN_DOFS = tuple(kernel.X_PHID + j for j in range(4))  # free wheel speeds
 
@@ -39,14 +43,18 @@ def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
     # respond to body velocity through R (|R| <= (1 + L + l) / r), roller slip through S (<= ~1.5)
     eps_phi, eps_sigma = rv["sign_width_phi"], rv["sign_width_sigma"]
     ground_nudge = NUDGE * np.minimum(eps_phi * rv["r"] / (1.0 + rv["L"] + rv["l"]), eps_sigma / 1.5)
-    for rows, dofs, nudge in ((np.flatnonzero(~upside), GROUND_DOFS, ground_nudge),
-                              (np.flatnonzero(upside), UPSIDE_DOWN_DOFS, NUDGE * eps_phi)):
+    # Upside down the signs are exact and sticking is decided by the kernel's stick probe, so
+    # the dry friction is no stiffness there: the speeds are nudged about a small positive speed
+    # (STICK_OFFSET x the probe nudge), on one side of the sign's jump.
+    up_nudge = NUDGE * np.full_like(eps_phi, UPSIDE_DOWN_NUDGE)
+    for rows, dofs, nudge, offset in ((np.flatnonzero(~upside), GROUND_DOFS, ground_nudge, 0.0),
+                                      (np.flatnonzero(upside), UPSIDE_DOWN_DOFS, up_nudge, STICK_OFFSET)):
         if rows.size:
-            lam[rows] = _decay_rates(rows, dofs, nudge[rows], X0, RV, P, EN, Rm, Sm, Minv, M, lay)
+            lam[rows] = _decay_rates(rows, dofs, nudge[rows], X0, RV, P, EN, Rm, Sm, Minv, M, lay, offset)
     return lam
 
 
-def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout, offset: float = 0.0) -> np.ndarray:
     d = len(dofs)
     n = rows.size * 2 * d  # each trajectory with each speed nudged up and down
     take = lambda a: np.ascontiguousarray(np.repeat(a[rows], 2 * d, axis=0))  # noqa: E731
@@ -55,7 +63,7 @@ def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout)
     sign = np.zeros((2 * d, d))
     for j in range(d):
         sign[2 * j, j], sign[2 * j + 1, j] = 1.0, -1.0
-    X[:, list(dofs)] += np.tile(sign, (rows.size, 1)) * np.repeat(nudge, 2 * d)[:, None]
+    X[:, list(dofs)] += np.tile(sign + offset, (rows.size, 1)) * np.repeat(nudge, 2 * d)[:, None]
     XF = kernel.load_kernel(lay).run_serial(
         X, take(RV), take(P), take(EN), take(Rm), take(Sm), take(Minv), take(M),
         np.zeros(1, dtype=np.int64), np.zeros((1, 1, 4)), 0.0, H_PROBE, np.ones(1, dtype=np.int64),

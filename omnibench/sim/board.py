@@ -61,7 +61,12 @@ class SimBoard:
         seeds = np.random.SeedSequence(self.world.seed).spawn(4)
         self._boot_rng = np.random.default_rng(seeds[0])
         self.robot = self.world.robot()
-        self.plant = Plant(self.robot, self.world.scenario(), self.world.dt)
+        if self.world.plant == "independent":  # physics written for testing only
+            from omnibench.worlds.independent import IndependentPlant
+
+            self.plant = IndependentPlant(self.robot, self.world.scenario(), self.world.dt)
+        else:
+            self.plant = Plant(self.robot, self.world.scenario(), self.world.dt)
         self.sensors = Sensors(self.world.sensors, self.robot.counts_per_rev, np.random.default_rng(seeds[1]))
         f = self.world.faults
         self.to_host = FaultyWire(f, np.random.default_rng(seeds[2]), f.direction in ("both", "to_host"))

@@ -8,12 +8,12 @@ milliseconds per call, far more than the physics of a 5 ms telemetry period.
 from __future__ import annotations
 
 import threading
-from dataclasses import replace
 
 import numba
 import numpy as np
 
 from omnibench.model import Scenario, Simulator
+from omnibench.model.scenario import operator_change
 
 
 _single = threading.local()
@@ -66,15 +66,7 @@ class Plant:
     def set_world(self, mode: str | None = None, payload: float | None = None,
                   wheel_mass: tuple[float, float, float, float] | None = None) -> None:
         """Operator action: flip the robot, add payload, swap wheels (ends at rest)."""
-        sc = self.sim.scenario
-        changes = {}
-        if mode is not None:
-            changes["mode"] = mode
-        if payload is not None:
-            changes["payload"] = float(payload)
-        if wheel_mass is not None:
-            changes["wheel_mass"] = tuple(float(m) for m in wheel_mass)
-        self.sim.set_scenario(replace(sc, **changes))
+        self.sim.set_scenario(operator_change(self.sim.scenario, mode, payload, wheel_mass))
         self.state = self.sim.state
 
     def at_rest(self, tol: float = 1e-3) -> bool:

@@ -17,6 +17,7 @@ from urllib.parse import parse_qs, urlsplit
 from omnibench.errors import UserError
 
 MODES = ("ground", "upside_down")
+PLANTS = ("model", "independent")
 CLOCKS = ("fast", "realtime")
 
 
@@ -71,6 +72,7 @@ class World:
     protocol: str = "omnibot-board-v2"   #: protocol description (name in protocols/ or path)
     baudrate: int = 115200               #: the board's UART speed; a host at another speed reads noise
     name: str | None = None              #: registry name, so `sim://ammeter?board=NAME` finds it
+    plant: str = "model"                 #: "model" (omnibench.model) or "independent" (omnibench.worlds.independent)
     #: mis-wiring: board motor channel k (FL FR RL RR order) drives wheel |wiring[k]| (1-based),
     #: reversed when negative; its current sensor follows the motor
     wiring: tuple[int, int, int, int] = (1, 2, 3, 4)
@@ -241,6 +243,10 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
         elif k == "firmware_version":
             vals = v if isinstance(v, (list, tuple)) else str(v).split(".")
             changes["firmware_version"] = tuple(int(x) for x in vals)
+        elif k == "plant":
+            if v not in PLANTS:
+                raise UserError(f"{where}: plant must be model or independent, not {v!r}")
+            changes["plant"] = v
         elif k in ("protocol", "name"):
             changes[k] = str(v)
         elif k in ("wiring", "encoder_wiring"):

@@ -30,9 +30,9 @@ def truth(robot):
 @pytest.fixture(scope="session")
 def campaign(truth):
     """A whole simulated campaign (sweep with currents, forward, lateral, energy)."""
-    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
 
-    return Observations.simulated(truth, seed=11)
+    return simulated_observations(truth, seed=11)
 
 
 @pytest.fixture(scope="session")

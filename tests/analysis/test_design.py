@@ -10,6 +10,7 @@ from omnibench.analysis.design.planner import parse_targets, plan, planning_name
 from omnibench.analysis.design.space import Costs, Limits, Space, build_space
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.bench.campaign import procedure_files
 from omnibench.bench.procedure import load_plan
 from omnibench.errors import UserError
@@ -31,13 +32,13 @@ def test_planned_se_is_the_se_the_fit_then_reports(tmp_path):
     robot = default_robot()
     truth = robot.replace(**TRUTH)
     files = procedure_files(None)
-    obs = Observations.simulated(truth, procedures=["sweep"], seed=3)  # the shipped sweep: both wheel sets
+    obs = simulated_observations(truth, procedures=["sweep"], seed=3)  # the shipped sweep: both wheel sets
     res = fit(robot, obs)
     targets = {"a": (0.5 * res.se["a"] / res.values["a"], True), "c": (0.5 * res.se["c"] / res.values["c"], True)}
     design = plan(robot, res, targets, _sweep_space(robot), obs=obs)
     assert design.units and all(design.met.values())
     written = write_procedures(design.units, files, tmp_path / "next", robot)
-    more = [Observations.simulated(truth, procedures=["sweep"], files={"sweep": p}, seed=11 + n, run_prefix=f"next{n}")
+    more = [simulated_observations(truth, procedures=["sweep"], files={"sweep": p}, seed=11 + n, run_prefix=f"next{n}")
             for n, (_, p) in enumerate(written)]
     after = fit(robot, Observations.concat([obs, *more]))
     for p in targets:

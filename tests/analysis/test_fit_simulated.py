@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import error_by_procedure, fit, sweep_linear_estimate
-from omnibench.analysis.observations import Observations
 from omnibench.analysis.validate import validate_energy
 
 CAMPAIGN_PARAMS = ("a", "b", "c", "k_e", "R_a", "C_r", "a_r", "b_r", "c_r")
@@ -54,7 +54,7 @@ def test_held_out_error_is_smaller_with_the_fitted_model(campaign_fit, campaign,
 def test_sweep_intervals_cover_the_truth_over_20_seeds(robot, truth):
     hits, zs = [], []
     for seed in range(20):
-        obs = Observations.simulated(truth, seed=100 + seed, procedures=["sweep"])
+        obs = simulated_observations(truth, seed=100 + seed, procedures=["sweep"])
         res = fit(robot, obs, procedures=["sweep"])
         assert set(res.free) == {"a", "b", "c", "k_e", "R_a"}
         for p in res.free:

@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
 from omnibench.errors import UserError
@@ -13,7 +14,7 @@ from omnibench.errors import UserError
 
 @pytest.fixture(scope="module")
 def sweep_no_current(truth):
-    return Observations.simulated(truth, seed=5, procedures=["sweep"], current=False)
+    return simulated_observations(truth, seed=5, procedures=["sweep"], current=False)
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +49,7 @@ def test_default_fit_without_current_flags_a_as_conditional_on_back_emf(robot, o
 
 
 def test_with_current_a_and_k_e_separate(robot, truth):
-    obs = Observations.simulated(truth, seed=6, procedures=["sweep"])
+    obs = simulated_observations(truth, seed=6, procedures=["sweep"])
     first = obs.sweep[obs.sweep["wheel_mass"] == obs.sweep["wheel_mass"].min()]
     one = obs.select(steps={(r, int(s)) for r, s in zip(first["run"], first["step"])})
     res = fit(robot, one, ["a", "b", "k_e", "R_a"])
@@ -81,7 +82,7 @@ def test_bad_parameter_names_are_one_line_errors(robot, sweep_no_current):
 def test_declared_effect_parameters_are_fitted_through_the_simulator(robot):
     """Generic over terms: a world with Stribeck friction, the robot declaring it."""
     truth = robot.replace(a=0.02, b=0.45, c=0.015, effects={"stribeck_friction": {"b_s": 0.2, "w_s": 1.0, "c_s": 0.01}})
-    obs = Observations.simulated(truth, seed=4, procedures=["sweep"])
+    obs = simulated_observations(truth, seed=4, procedures=["sweep"])
     start = robot.replace(effects={"stribeck_friction": {"b_s": 0.1, "w_s": 1.5, "c_s": 0.01}})
     res = fit(start, obs, ["a", "b", "c", "stribeck_friction.b_s", "stribeck_friction.w_s"])
     assert res.values["stribeck_friction.b_s"] == pytest.approx(0.2, abs=3 * res.se["stribeck_friction.b_s"])

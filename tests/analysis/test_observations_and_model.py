@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 from scipy.optimize import brentq
 
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import predict_observations
 from omnibench.analysis.model_file import load_model, write_model
 from omnibench.analysis.observations import Observations, slope_fit
@@ -30,8 +31,12 @@ def test_slope_fit_of_an_exact_line_and_of_noise():
     assert np.std(ws) == pytest.approx(0.01 / math.sqrt(np.sum((t - t.mean()) ** 2)), rel=0.15)
 
 
+from omnibench.model.kernel import EXACT_SIGN_WIDTH  # noqa: E402
+
+
 def test_sweep_prediction_equals_the_closed_form_steady_state(truth):
-    """Upside down: eta k_t (u V - k_e w)/R_a = (1 + c F)(a w + b sign_eps(w)) at steady state."""
+    """Upside down: eta k_t (u V - k_e w)/R_a = (1 + c F)(a w + b sign(w)) at steady state (the
+    wheels' dry friction is exact there: stick-slip)."""
     rows = []
     for k, (u, mass) in enumerate([(0.1, 0.9), (0.4, 0.9), (-0.7, 1.9), (0.9, 1.9)]):
         rows.append({"run": "cf", "step": k, "wheel": 1, "u": u, "direction": np.sign(u), "wheel_mass": mass,
@@ -44,7 +49,7 @@ def test_sweep_prediction_equals_the_closed_form_steady_state(truth):
 
         def torque(w):
             i = (u * truth.V_batt - truth.k_e * w) / truth.R_a
-            return truth.eta * truth.k_t * i - (1 + truth.c * F) * (truth.a * w + truth.b * sign_eps(w, truth.sign_width_phi))
+            return truth.eta * truth.k_t * i - (1 + truth.c * F) * (truth.a * w + truth.b * sign_eps(w, EXACT_SIGN_WIDTH))
 
         w = brentq(torque, -30, 30, xtol=1e-12)
         i = (u * truth.V_batt - truth.k_e * w) / truth.R_a
@@ -107,7 +112,7 @@ def test_from_runs_errors_are_one_line(tmp_path):
 def test_model_file_round_trip(tmp_path, robot, truth):
     from omnibench.analysis.fitting import fit
 
-    obs = Observations.simulated(truth, seed=2, procedures=["sweep"])
+    obs = simulated_observations(truth, seed=2, procedures=["sweep"])
     res = fit(robot, obs, ["a", "b", "c"])
     path = write_model(tmp_path / "model.toml", res, ["runs/x"])
     back, info = load_model(path)

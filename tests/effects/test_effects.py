@@ -89,10 +89,13 @@ def test_energy_balance_closes_with_each_effect_at_realistic_size(omnibot, mode)
 
 # --- upside-down steady states: torque balance solved here, compared with the simulation ---
 
+from omnibench.model.kernel import EXACT_SIGN_WIDTH  # noqa: E402
+
+
 def _steady(robot, u_eff: float, F_N: float, extra) -> float:
     """Root of eta k_t (u V - k_e w)/R_a - (1 + c F_N)(a w + b sign w) + extra(w) = 0, rad/s."""
     g = robot.eta * robot.k_t / robot.R_a
-    eps = robot.sign_width_phi
+    eps = EXACT_SIGN_WIDTH  # upside down the dry terms' sign is exact (stick-slip)
 
     def balance(w: float) -> float:
         return g * (u_eff * robot.V_batt - robot.k_e * w) - (1 + robot.c * F_N) * (robot.a * w + robot.b * w / math.hypot(w, eps)) + extra(w)
@@ -107,11 +110,11 @@ def _sgn(w: float, eps: float) -> float:
 UPSIDE_CASES = {
     # name: (effect values, extra torque on the axle as a function of (w, wheel index, F_N))
     "stribeck_friction": ({"b_s": 0.25, "w_s": 1.0, "c_s": 0.01},
-                          lambda w, j, F: -(1 + 0.01 * F) * 0.25 * math.exp(-w * w) * _sgn(w, 0.5)),
-    "asymmetric_coulomb": ({"db": 0.06}, lambda w, j, F: -0.06 * abs(_sgn(w, 0.1))),
+                          lambda w, j, F: -(1 + 0.01 * F) * 0.25 * math.exp(-w * w) * _sgn(w, EXACT_SIGN_WIDTH)),
+    "asymmetric_coulomb": ({"db": 0.06}, lambda w, j, F: -(1 + 0.01 * F) * 0.06 * abs(_sgn(w, EXACT_SIGN_WIDTH))),
     "per_wheel_friction": ({"db_1": 0.0, "db_2": 0.08, "db_3": -0.06, "db_4": 0.05,
                             "da_1": 0.002, "da_2": 0.0, "da_3": -0.003, "da_4": 0.001},
-                           lambda w, j, F: -(0.0, 0.08, -0.06, 0.05)[j] * _sgn(w, 0.1) - (0.002, 0.0, -0.003, 0.001)[j] * w),
+                           lambda w, j, F: -(0.0, 0.08, -0.06, 0.05)[j] * _sgn(w, EXACT_SIGN_WIDTH) - (0.002, 0.0, -0.003, 0.001)[j] * w),
     "quadratic_drag": ({"d_q": 1.5e-3}, lambda w, j, F: -1.5e-3 * abs(w) * w),
 }
 

@@ -207,32 +207,45 @@ def test_stiffness_on_the_ground_equals_the_closed_form_of_the_papers_terms(sign
 
 
 def test_stiffness_at_rest_equals_the_closed_form_of_the_papers_terms():
-    """Upside down the wheels are decoupled: each speed decays at rate
-    (eta k_t k_e / R_a + (1 + c F_N)(a + b / eps)) / I_w near zero speed."""
+    """Upside down the wheels are decoupled and their dry friction is exact (stick-slip, not a
+    stiff regularised sign): each speed decays at rate (eta k_t k_e / R_a + (1 + c F_N) a) / I_w."""
     robot = default_robot()
     FN = np.asarray(robot.wheel_mass) * GRAVITY
-    rate = (robot.eta * robot.k_t * robot.k_e / robot.R_a
-            + (1 + robot.c * FN) * (robot.a + robot.b / robot.sign_width_phi)) / robot.I_w
+    rate = (robot.eta * robot.k_t * robot.k_e / robot.R_a + (1 + robot.c * FN) * robot.a) / robot.I_w
     assert prepare(robot, Scenario(mode="upside_down")).substeps_lambda == pytest.approx(rate.max(), rel=1e-6)
 
 
 @pytest.mark.parametrize("method", ["rk4", "heun"])
 def test_an_effects_stiffness_is_counted_in_the_substeps(method):
     """Extra Coulomb friction of 0.5 N m on one wheel (per_wheel_friction, an effect the
-    paper's formula never saw) almost doubles that wheel's decay rate at rest. The sub-step rule
-    must count it, or the wheel chatters around zero speed instead of stopping."""
+    paper's formula never saw) stiffens the regularised ground dynamics: the sub-step rule must
+    count it (closed form K = R^T D_w R + S^T D_r S as above, wheel 2's D_w + 0.5 / eps), or the
+    robot chatters around zero speed instead of stopping. Upside down it is exact dry friction:
+    the wheel stops dead."""
+    from omnibench.model.geometry import inverse_kinematics, slip_matrix
+
     robot = default_robot()
-    plain = Scenario(mode="upside_down")
-    stiff = Scenario(mode="upside_down", effects={"per_wheel_friction": {"db_2": 0.5}})
-    FN2 = robot.wheel_mass[1] * GRAVITY
-    rate2 = (robot.eta * robot.k_t * robot.k_e / robot.R_a
-             + (1 + robot.c * FN2) * (robot.a + robot.b / robot.sign_width_phi) + 0.5 / robot.sign_width_phi) / robot.I_w
-    assert prepare(robot, stiff).substeps_lambda == pytest.approx(rate2, rel=1e-5)
-    assert stable_substeps(prepare(robot, stiff).substeps_lambda, 1e-3, method) > \
-        stable_substeps(prepare(robot, plain).substeps_lambda, 1e-3, method)
+    stiff = Scenario(effects={"per_wheel_friction": {"db_2": 0.5}})
+    R = inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
+    S = slip_matrix(robot.L, robot.l, robot.alpha)
+    FN = np.full(4, robot.m * GRAVITY / 4)
+    d_w = (robot.eta * robot.k_t * robot.k_e / robot.R_a
+           + (1 + robot.c * FN) * (robot.a + robot.b / robot.sign_width_phi)
+           + FN * robot.C_r * robot.r / robot.sign_width_phi)
+    d_w[1] += 0.5 / robot.sign_width_phi
+    d_r = (1 + robot.c_r * FN) * (robot.a_r + robot.b_r / robot.sign_width_sigma)
+    K = R.T @ np.diag(d_w) @ R + S.T @ np.diag(d_r) @ S
+    M = np.diag([robot.m, robot.m, robot.I_z]) + robot.I_w * R.T @ R
+    rate = np.real(np.linalg.eigvals(np.linalg.solve(M, K))).max()
+    assert prepare(robot, stiff).substeps_lambda == pytest.approx(rate, rel=1e-5)
+    assert prepare(robot, stiff).substeps_lambda > prepare(robot, Scenario()).substeps_lambda + 200.0
     df = simulate(robot, stiff, [0.0, 0.5], [[0.4, 0.6, 0.2, 0.5], [0.0, 0.0, 0.0, 0.0]], 1.5, method=method)
-    assert df.loc[df["t"] < 0.5, "phi_dot2"].abs().max() > 1.0
-    assert df.loc[df["t"] > 1.2, "phi_dot2"].abs().max() < 1e-3
+    assert df.loc[df["t"] < 0.5, "v1"].abs().max() > 0.1
+    assert df.loc[df["t"] > 1.2, ["v1", "v2"]].abs().max().max() < 1e-3
+    up = simulate(robot, Scenario(mode="upside_down", effects=stiff.effects), [0.0, 0.5],
+                  [[0.4, 0.6, 0.2, 0.5], [0.0, 0.0, 0.0, 0.0]], 1.5, method=method)
+    assert up.loc[up["t"] < 0.5, "phi_dot2"].abs().max() > 1.0
+    assert (up.loc[up["t"] > 1.2, "phi_dot2"] == 0.0).all()
 
 
 @pytest.mark.parametrize("mode", ["ground", "upside_down"])

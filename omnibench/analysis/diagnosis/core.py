@@ -9,14 +9,24 @@ Algorithm (docs/diagnose.md has the long form):
 3. Screen every library candidate with a first-order score test (residual projected on the
    candidate's sensitivities), refit the most promising `top_k` exactly (nonlinear, together
    with the model's own parameters).
+   An effect with several forms (Effect.forms) is refitted in each; the best form is kept and
+   the report says which the data chose and by how much AIC.
 4. A candidate earns its place when (a) its likelihood-ratio test against the current model
    passes p < alpha / m (m candidates tested: Bonferroni), (b) it lowers the held-out
-   (K-fold over run steps) weighted error by more than 2 per parameter, (c) its fitted values
+   (K-fold over run steps) weighted error by more than 2 per parameter and no procedure's
+   held-out error rises beyond that procedure's own noise (WORSE_SE), (c) its fitted values
    are inside their physical range (not on a bound), and (d) it removes at least half of the
-   strength (-log10 p) of some significant residual structure (a procedure/signal group against
-   one variable); otherwise it only leans on structure something else makes: reported, not added. Among those, the lowest AIC wins; others within AMBIGUOUS of it
+   strength (-log10 p) of some significant residual structure in a procedure where its physics
+   shows (a procedure/signal group against one variable); otherwise it only leans on structure
+   something else makes: reported, not added.
+   Adequacy: it is added only if the structure it acts on is gone with it (no longer
+   significant by the same tests). When the best is not adequate, pairs led by the best significant
+   candidates are refitted together; a pair is added when it earns its place, removes the
+   structure, and each effect is significant given the other. Otherwise the structure stays
+   "unexplained". Among adequate candidates the lowest AIC wins; others within AMBIGUOUS of it
    are reported as not separable with these data, with the experiment that would separate them.
-5. Add the winner, refit, repeat until nothing earns its place (or `max_effects`).
+5. Add the winner, polish the fit and check the bounds again, repeat until nothing earns its
+   place (or `max_effects`). "Added" reports the final model's values.
 6. Report what structure remains, and the held-out error before and after per procedure.
 """
 
@@ -37,12 +47,18 @@ ALPHA = 1e-3  # family-wise level for adding an effect
 AMBIGUOUS = 10.0  # AIC difference below which two candidates are not told apart
 PARTIAL = 0.5  # a candidate must remove at least this fraction of the residual structure
 SCREEN_FRACTION = 0.5  # screen LR below this fraction of the add threshold: not refitted
-WORSE = 0.05  # no procedure's held-out error may end more than this fraction above the declared model's
+WORSE_SE = 2.0  # a procedure's held-out mean square may not rise by more than this many of its own SE
+# (a mean of n squared residuals has relative SE sqrt(2 / n): a 4-run energy set at its noise
+# floor may move by 140 %, a 256-entry sweep by 18 %, before a rise counts as worse)
 MAX_FITS = 6  # refits per round when the top_k all fail
 POLISH_NFEV = 60  # evaluations allowed when fitting the declared and each accepted model
 ZERO_SE = 2.0  # a candidate whose every fitted parameter is within this many SE of 0 is absent
 RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
 CONFOUNDED = 1e-6  # share of a candidate's sensitivity left after the fitted parameters' directions
+PAIR_LEADS = 2  # best fitted candidates tried as the first of a pair when no single one is adequate
+PAIR_TOP = 3  # partners screened against each lead's fit and refitted with it
+TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral",
+            "energy_trajectories": "energy", "step_response": "step_response"}
 
 
 @dataclass
@@ -67,6 +83,11 @@ class Candidate:
     fit: Any = None
     struct: tuple[list, int] | None = None  # residual structure of the refitted model (findings, tests)
     worse: dict[str, tuple[float, float]] = field(default_factory=dict)  # procedure -> (declared, with it)
+    form: str = ""  # the form the data chose (Effect.forms), '' for an effect with one form
+    form_margin: dict[str, float] = field(default_factory=dict)  # other form -> AIC above the chosen
+    acted: list = field(default_factory=list)  # (group, variable) structure it removed half or more of
+    remaining: list = field(default_factory=list)  # ... of which still significant with it: not adequate
+    partner: str = ""  # the other effect when it was added as a pair
 
     def evidence(self) -> dict[str, Any]:
         def f(x: float) -> float | None:
@@ -74,7 +95,10 @@ class Candidate:
 
         return {"round": self.round, "likelihood_ratio": f(self.lr), "parameters_added": self.q, "p_value": f(self.p),
                 "aic_drop": f(self.aic_drop), "heldout_gain": f(self.cv_gain), "screen_lr": f(self.approx_lr),
-                "structure_before": f(self.structure_before), "structure_after": f(self.structure_after)}
+                "structure_before": f(self.structure_before), "structure_after": f(self.structure_after),
+                "form": self.form or None, "form_aic_margin": {k: f(v) for k, v in self.form_margin.items()},
+                "structure_removed": [list(k) for k in self.acted], "structure_left": [list(k) for k in self.remaining],
+                "added_with": self.partner or None}
 
 
 @dataclass
@@ -149,6 +173,11 @@ class Diagnosis:
                              f" (final model: {self.final_fit.values.get(c.name, float('nan')):.4g})")
                 else:
                     L.append(f"  + {c.name} ({EFFECTS[c.name].term.title}): {vals}")
+                if c.form:
+                    alt = ", ".join(f"{k} AIC +{v:.1f}" for k, v in c.form_margin.items())
+                    L.append(f"    form: {c.form}" + (f" (the data chose it over: {alt})" if alt else ""))
+                if c.partner:
+                    L.append(f"    added together with {c.partner}: neither alone removes the structure")
                 from omnibench.analysis.diagnosis.timing import wheel_order_note
 
                 if wheel_order_note(c.name, c.values, c.se):
@@ -218,16 +247,6 @@ def _finding_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict
     return out
 
 
-def _explains(before: tuple[list, int], after: tuple[list, int]) -> bool:
-    """True when the new model removes at least PARTIAL of some significant structure (a
-    procedure/signal group against one variable), or when there was none to remove. (Other
-    structure may then stand out more: the noise scale shrinks; the LR test has judged the fit.)"""
-    b, a = _finding_scores(*before), _finding_scores(*after)
-    if not b:
-        return True
-    return any(a.get(k, 0.0) <= (1 - PARTIAL) * s for k, s in b.items())
-
-
 def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any, list[str], list[str]]:
     """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit)."""
     from omnibench.analysis import fitting
@@ -274,29 +293,42 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     rejected: list[Candidate] = []
     ambiguous: list[dict[str, Any]] = []
     exposed: dict[str, structure.Finding] = {}
-    def assess(c: Candidate, e: Any, cf: engine.ModelFit) -> bool:
-        """Fill a refitted candidate's evidence and judge it (library effects and core parameters alike)."""
-        c.lr, c.p = engine.lr_test(current, cf, e.n_params)
-        c.aic_drop = c.lr - 2 * e.n_params
+    def evaluate(c: Candidate, effects: Sequence[Effect], cf: engine.ModelFit, p_needed: float) -> bool:
+        """Fill c's evidence from the refit cf (the current model plus `effects`) and judge it."""
+        c.fitted, c.fit = True, cf
+        c.values = {p: cf.values[p] for p in cf.free if p.split(".")[0] in {e.name for e in effects}}
+        c.se = {p: cf.se[p] for p in c.values}
+        c.q = sum(e.n_params for e in effects)
+        c.lr, c.p = engine.lr_test(current, cf, c.q)
+        c.aic_drop = c.lr - 2 * c.q
         w_common = current.weights(problem)
         ho0 = engine.heldout_residuals(problem, current, fold)
         ho1 = engine.heldout_residuals(problem, cf, fold, w_common)
         c.cv_gain = engine.cv_score(problem, ho0, w_common) - engine.cv_score(problem, ho1, w_common)
-        # the per-procedure errors as they will be reported (each model with its own weights)
+        # the per-procedure errors as they will be reported (each model with its own weights),
+        # compared with the declared model's, so small losses cannot pile up round after round
         e1 = engine.error_table(problem, engine.heldout_residuals(problem, cf, fold))
-        # compared with the declared model, so small losses cannot pile up round after round
         c.worse = {p: (base_err[p]["nrmse"], e1[p]["nrmse"]) for p in base_err
-                   if p in e1 and e1[p]["nrmse"] > (1 + WORSE) * base_err[p]["nrmse"]}
+                   if p in e1 and _worse(base_err[p], e1[p])}
         st, nt = _structure_of(problem, cf)
         c.structure_before, c.structure_after = _score(cur_struct, cur_ntests), _score(st, nt)
         c.struct = (st, nt)
-        return _judge(c, e, alpha / m, (cur_struct, cur_ntests))
+        procs_of = {TABLE_OF.get(p, p) for e in effects for p in e.procedures}
+        c.acted, c.remaining = _acted_on((cur_struct, cur_ntests), c.struct, procs_of)
+        return _judge(c, effects, p_needed, (cur_struct, cur_ntests), procs_of)
+
+    def veto(fit: engine.ModelFit) -> str:
+        """'' or words: a procedure whose held-out error the fit makes worse beyond its noise."""
+        e1 = engine.error_table(problem, engine.heldout_residuals(problem, fit, fold))
+        bad = [f"{p} ({100 * base_err[p]['nrmse']:.2f} % -> {100 * e1[p]['nrmse']:.2f} %)" for p in base_err
+               if p in e1 and _worse(base_err[p], e1[p])]
+        return ("makes the held-out error worse beyond its noise in " + ", ".join(bad)) if bad else ""
 
     for rnd in range(1, max_effects + 1):
         if not pool and not core_params.candidates(problem, current):
             break
         say(f"round {rnd}: screening {len(pool)} candidate effects")
-        scr = engine.screen(problem, current, pool) if pool else None
+        scr = _screen(problem, current, pool) if pool else None
         m = len(pool) + len(core_params.candidates(problem, current))
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
@@ -313,15 +345,12 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             if (n_fitted < top_k and leading or fallback) and ratio >= SCREEN_FRACTION:
                 say(f"round {rnd}: fitting {e.name}")
                 try:
-                    cf = engine.fit_candidate(problem, current, e, scr.estimate[e.name])
+                    cf, c.form, c.form_margin = _fit_forms(problem, current, e, scr.estimate[e.name])
                 except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
                     c.reason = f"fit failed ({exc.__class__.__name__})"
                     tried.append(c)
                     continue
-                c.fitted, c.fit = True, cf
-                c.values = {p: cf.values[p] for p in cf.free if p.startswith(e.name + ".")}
-                c.se = {p: cf.se[p] for p in c.values}
-                if assess(c, e, cf):
+                if evaluate(c, [e.with_form(c.form)], cf, alpha / m):
                     passing.append(c)
             else:
                 c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, far below the {thr[e.name]:.1f} needed"
@@ -335,43 +364,67 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                                 f"fitted parameters changes alike; shows in {', '.join(e.procedures)})")
             tried.append(c)
         # a declared parameter the data say is wrong competes on the same evidence (core_params.py)
-        core_pass, core_tried = core_params.round_candidates(problem, current, rnd, assess=assess, make=Candidate,
-                                                             say=say)
+        core_pass, core_tried = core_params.round_candidates(
+            problem, current, rnd, assess=lambda c, e, cf: evaluate(c, [e], cf, alpha / m), make=Candidate, say=say)
         passing += core_pass
         tried += core_tried
-        if not passing:
+        passing.sort(key=lambda c: -c.aic_drop)
+        # a core parameter (core_params.py) is a correction of the declared model, not a new
+        # mechanism standing in for another: it needs no adequacy (a wrong declared value left in
+        # biases every later test; what it leaves is reported, and sought in the next round)
+        adequate = [c for c in passing if not c.remaining or core_params.is_core(c.name)]
+        added: list[Candidate] = []
+        if adequate and adequate[0] is passing[0]:
+            added = _polished(adequate[:1], problem, say, rnd, veto)
+        if not added:
+            # no single candidate both earns its place and removes the structure it acts on:
+            # two effects at once, led by a significant one (no significant single, no pair:
+            # what one effect cannot show, two are not tried for; pair fits are the costly part)
+            leads = [c for c in tried if c.fitted and c.aic_drop > 0 and c.p < alpha / m
+                     and not core_params.is_core(c.name)]
+            pair = _best_pair(problem, current, leads, pool, evaluate, alpha, m, say, rnd) if leads else []
+            if pair:
+                added = _polished(pair, problem, say, rnd, veto)
+        for c in adequate:
+            if added:
+                break
+            if not c.reason:  # not already refused after its final fit
+                added = _polished([c], problem, say, rnd, veto)
+        for c in passing:
+            if c.remaining and not any(c is a for a in added) and not core_params.is_core(c.name):
+                c.reason = ("does not remove the structure it acts on: still " + "; ".join(
+                    _where(c.struct, k) for k in c.remaining) + " with it (an effect of another form, or a "
+                    "second effect, is at work: left unexplained)")
+        if not added:
             rejected += tried
             break
-        passing.sort(key=lambda c: -c.aic_drop)
-        best = passing[0]
-        for c in passing[1:]:
+        best = added[0]
+        for c in passing:
+            if any(c is a for a in added):
+                continue
             diff = best.aic_drop - c.aic_drop
-            if diff < AMBIGUOUS:
+            if diff < AMBIGUOUS and not c.remaining:
                 ambiguous.append({"chosen": best.name, "alternative": c.name, "aic_difference": float(diff),
                                   "experiment": separating_experiment(_spec(best.name), _spec(c.name))})
                 c.reason = f"fits almost as well as {best.name} (AIC difference {diff:.1f}): not separable with these data"
-            else:
+            elif not c.remaining:
                 c.reason = f"significant, but {best.name} explains the data better (AIC difference {diff:.1f})"
-        best.verdict = "selected"
-        rejected += [c for c in tried if c is not best]
-        selected.append(best)
-        exposed_f = _exposing_finding(cur_struct, cur_ntests, best.struct)
-        if exposed_f is not None:
-            exposed[best.name] = exposed_f
-        say(f"round {rnd}: added {best.name}")
-        # Polish the accepted model to convergence: a candidate fit stops after a few
-        # evaluations, and the next round's likelihood ratios must not be inflated by the
-        # convergence the next candidate's refit would merely continue.
-        current = engine.fit_model(problem, best.fit.robot, best.fit.free, max_nfev=POLISH_NFEV, passes=3)
-        if current.deviance > best.fit.deviance:
-            current = best.fit
-        else:
-            best.fit = current
-            best.values = {p: current.values[p] for p in best.values}
-            best.se = {p: current.se[p] for p in best.values}
-            best.struct = _structure_of(problem, current)
+        for c in added:
+            c.verdict = "selected"
+            selected.append(c)
+            exposed_f = _exposing_finding(cur_struct, cur_ntests, c.struct)
+            if exposed_f is not None:
+                exposed[c.name] = exposed_f
+            say(f"round {rnd}: added {c.name}")
+        names_added = {c.name for c in added}
+        rejected += [c for c in tried if c.name not in names_added]
+        current = best.fit
         cur_struct, cur_ntests = best.struct
-        pool = [e for e in pool if e.name != best.name]
+        pool = [e for e in pool if e.name not in names_added]
+    # "added" reports the final model's values, not those of the round that added the effect
+    for c in selected:
+        c.values = {p: current.values[p] for p in c.values if p in current.values}
+        c.se = {p: current.se[p] for p in c.values}
     final_sig = structure.significant(cur_struct, cur_ntests)
     say("held-out errors")
     base_ho = engine.heldout_residuals(problem, base, fold)
@@ -388,42 +441,200 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
 
 
 def _at_bound(effect: Effect, values: Mapping[str, float]) -> str:
-    """'' or words naming a fitted parameter that sits on its bound."""
+    """'' or words naming a fitted parameter of `effect` (among `values`) that sits on its bound."""
     specs = {p.name: p for p in effect.term.params}
     for full, v in values.items():
-        spec = specs[full.split(".")[-1]]
+        name, _, par = full.partition(".")
+        par = par or name  # a core parameter (core_params.py) is its own only parameter
+        if name != effect.name:
+            continue
+        spec = specs[par]
         lo, hi = spec.lower, spec.upper
         span = (hi - lo) if math.isfinite(hi - lo) else max(abs(v), 1.0)
         for edge in (lo, hi):
             if math.isfinite(edge) and edge != 0.0 and abs(v - edge) <= 1e-3 * span:
-                return f"{full.split('.')[-1]} = {v:.4g} {spec.unit}, bound {edge:g}"
+                return f"{par} = {v:.4g} {spec.unit}, bound {edge:g}"
     return ""
 
 
-def _judge(c: Candidate, e: Effect, p_needed: float, before: tuple[list, int]) -> bool:
-    """Does a refitted candidate earn its place? Sets c.reason when it does not."""
+def _worse(before: Mapping[str, Any], after: Mapping[str, Any]) -> bool:
+    """Is a procedure's held-out error worse beyond its own noise? Its mean square may rise by
+    WORSE_SE standard errors of a mean of n squares (relative SE sqrt(2 / n))."""
+    n = sum(int(v.get("n", 0)) for v in before.get("signals", {}).values())
+    e0, e1 = before["nrmse"], after["nrmse"]
+    if not (n > 0 and math.isfinite(e0) and math.isfinite(e1) and e0 > 0):
+        return False
+    return (e1 / e0) ** 2 - 1.0 > WORSE_SE * math.sqrt(2.0 / n)
+
+
+def _acted_on(before: tuple[list, int], after: tuple[list, int], procs: set[str]) -> tuple[list, list]:
+    """(structure it acted on, of which still significant): the significant (group, variable)
+    structure of the procedures where the effect shows that the new model reduced by at least
+    PARTIAL of its strength, and those of them that are still significant with it."""
+    b = {k: v for k, v in _finding_scores(*before).items() if k[0].split("/")[0] in procs}
+    a = _finding_scores(*after)
+    acted = [k for k, v in b.items() if a.get(k, 0.0) <= (1 - PARTIAL) * v]
+    return acted, [k for k in acted if a.get(k, 0.0) > 0.0]
+
+
+def _where(struct: tuple[list, int] | None, key: tuple[str, str]) -> str:
+    """Words for the strongest finding of (group, variable) in struct."""
+    found = [f for f in (struct[0] if struct else []) if (f.group, f.variable) == key]
+    if found:
+        f = min(found, key=lambda f: f.p)
+        return f"{f.location()} [p={f.p:.1e}]"
+    return f"{key[0]} against {key[1]}"
+
+
+def _judge(c: Candidate, effects: Sequence[Effect], p_needed: float, before: tuple[list, int],
+           procs: set[str]) -> bool:
+    """Does a refitted candidate (one effect, or a pair) earn its place? Sets c.reason when not.
+    Whether it is adequate (removes the structure it acts on) is judged by the caller."""
+    own = lambda e: {k: v for k, v in c.values.items() if k.split(".")[0] == e.name}  # noqa: E731
+    zero = [e for e in effects if own(e) and all(abs(v) < ZERO_SE * c.se.get(k, 0.0) for k, v in own(e).items())]
+    bound = next((f"{e.name}: {_at_bound(e, c.values)}" for e in effects if _at_bound(e, c.values)), "")
     if not (c.p < p_needed):
         c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {p_needed:.1e})"
-    elif c.values and all(abs(v) < ZERO_SE * c.se.get(k, 0.0) for k, v in c.values.items()):
+    elif zero:
         c.reason = (f"its fitted size is indistinguishable from zero ("
-                    + ", ".join(f"{k} = {v:.3g} ± {c.se.get(k, float('nan')):.2g}" for k, v in c.values.items())
+                    + ", ".join(f"{k} = {v:.3g} ± {c.se.get(k, float('nan')):.2g}" for k, v in own(zero[0]).items())
                     + "): the likelihood gain comes from refitting the other parameters, not from the effect")
-    elif _at_bound(e, c.values):
-        c.reason = (f"its fit runs to the edge of the physical range ({_at_bound(e, c.values)}): it stands in "
+    elif bound:
+        c.reason = (f"its fit runs to the edge of the physical range ({bound}): it stands in "
                     "for something else rather than measuring itself")
     elif not (c.cv_gain > 2 * c.q):
         change = f"falls by {c.cv_gain:.1f}" if c.cv_gain >= 0 else f"rises by {-c.cv_gain:.1f}"
         c.reason = f"does not earn its parameters on held-out steps (held-out weighted error {change}, needs to fall by > {2 * c.q})"
     elif c.worse:
-        c.reason = "makes the held-out error worse in " + ", ".join(
+        c.reason = "makes the held-out error worse beyond its noise in " + ", ".join(
             f"{p} ({100 * a:.2f} % -> {100 * b:.2f} %)" for p, (a, b) in c.worse.items())
-    elif c.struct is None or not _explains(before, c.struct):
-        c.reason = (f"explains none of the residual structure (score {c.structure_before:.0f} -> "
-                    f"{c.structure_after:.0f}, no structure loses half its strength): it leans on structure "
-                    "another mechanism makes")
+    elif c.struct is None or (not c.acted and (structure.significant(*before) or c.round > 1)):
+        # (LR alone may add an effect only to a declared model whose residual the structure
+        # tests cannot judge: a few energy runs; after that, an addition must act on structure)
+        c.reason = (f"explains none of the residual structure where it shows ({', '.join(sorted(procs))}; score "
+                    f"{c.structure_before:.0f} -> {c.structure_after:.0f}, no structure there loses half its "
+                    "strength): it leans on structure another mechanism makes")
     else:
         return True
     return False
+
+
+def _screen(problem: engine.Problem, fit: engine.ModelFit, pool: Sequence[Effect]) -> engine.Screen:
+    """engine.screen over every form of every candidate; per candidate its most promising form's."""
+    variants = [(e, f) for e in pool for f in (list(e.forms) or [""])]
+    out = engine.Screen({}, {}, {})
+    for form in sorted({f for _, f in variants}):
+        effs = [e.with_form(form) for e, f in variants if f == form]
+        scr = engine.screen(problem, fit, effs)
+        for e in effs:
+            if e.name not in out.approx_lr or scr.approx_lr[e.name] > out.approx_lr[e.name]:
+                out.approx_lr[e.name], out.estimate[e.name] = scr.approx_lr[e.name], scr.estimate[e.name]
+            out.distinct[e.name] = max(out.distinct.get(e.name, 0.0), scr.distinct[e.name])
+    return out
+
+
+def _fit_forms(problem: engine.Problem, current: engine.ModelFit, e: Effect,
+               estimate: Mapping[str, float]) -> tuple[engine.ModelFit, str, dict[str, float]]:
+    """Refit `e` in each of its forms: (best fit, its form, other form -> AIC above it)."""
+    fits = []
+    for form in (list(e.forms) or [""]):
+        try:
+            fits.append((engine.fit_candidate(problem, current, e.with_form(form), estimate), form))
+        except (np.linalg.LinAlgError, ValueError):
+            if len(e.forms) <= 1:
+                raise
+    if not fits:
+        raise ValueError("no form could be fitted")
+    fits.sort(key=lambda x: x[0].deviance)
+    best, form = fits[0]
+    return best, form, {f: float(cf.deviance - best.deviance) for cf, f in fits[1:]}
+
+
+def _polished(cands: list[Candidate], problem: engine.Problem, say: Callable[[str], None], rnd: int,
+              veto: Callable[[engine.ModelFit], str]) -> list[Candidate]:
+    """Polish the accepted fit to convergence (a candidate fit stops after a few evaluations, and
+    the next round's likelihood ratios must not be inflated by convergence the next refit would
+    merely continue), then check the bounds on the polished values: [] if one sits on its bound."""
+    c0 = cands[0]
+    say(f"round {rnd}: final fit with {' and '.join(c.name for c in cands)}")
+    pol = engine.fit_model(problem, c0.fit.robot, c0.fit.free, max_nfev=POLISH_NFEV, passes=3)
+    fit = pol if pol.deviance <= c0.fit.deviance else c0.fit
+    for c in cands:
+        bound = _at_bound(_spec(c.name), {p: fit.values[p] for p in c.values})
+        if bound:
+            c.reason = (f"its final fit runs to the edge of the physical range ({bound}): it stands in for "
+                        "something else rather than measuring itself")
+            return []
+    why = veto(fit)
+    zero = [c.name for c in cands if c.values and all(abs(fit.values[p]) < ZERO_SE * fit.se[p] for p in c.values)]
+    if zero:
+        why = f"is indistinguishable from zero ({', '.join(zero)})"
+    if why:
+        for c in cands:
+            c.reason = f"after its final fit it {why}"
+        return []
+    struct = _structure_of(problem, fit)
+    for c in cands:
+        c.fit, c.struct = fit, struct
+        c.values = {p: fit.values[p] for p in c.values}
+        c.se = {p: fit.se[p] for p in c.values}
+    return cands
+
+
+def _best_pair(problem: engine.Problem, current: engine.ModelFit, fitted: list[Candidate], pool: Sequence[Effect],
+               evaluate: Callable, alpha: float, m: int, say: Callable[[str], None], rnd: int) -> list[Candidate]:
+    """Two effects at once, when no single one is adequate. Each of the PAIR_LEADS best fitted
+    candidates is taken as a provisional model, the others are screened against what it leaves,
+    and it is refitted together with the PAIR_TOP most promising of them. A pair is added when it
+    earns its place, removes the structure it acts on, and each effect is significant given the
+    other. Returns the two candidates (sharing the pair's fit), or []."""
+    best: tuple[float, list[Candidate]] | None = None
+    done: set[frozenset] = set()
+    for lead in sorted(fitted, key=lambda c: -c.aic_drop)[:PAIR_LEADS]:
+        others = [e for e in pool if e.name != lead.name]
+        if not others:
+            continue
+        scr = _screen(problem, lead.fit, others)
+        thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in others}
+        partners = sorted(others, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])[:PAIR_TOP]
+        for e2 in partners:
+            key = frozenset((lead.name, e2.name))
+            if key in done or scr.approx_lr[e2.name] < SCREEN_FRACTION * thr[e2.name]:
+                continue
+            done.add(key)
+            e1 = EFFECTS[lead.name].with_form(lead.form)
+            say(f"round {rnd}: fitting the pair {lead.name} + {e2.name}")
+            try:
+                cf = engine.fit_candidates(problem, current, [e1, e2],
+                                           [lead.values, {f"{e2.name}.{k}": v for k, v in scr.estimate[e2.name].items()}])
+            except (np.linalg.LinAlgError, ValueError):
+                continue
+            pc = Candidate(f"{lead.name}+{e2.name}", rnd, float("nan"))
+            if not evaluate(pc, [e1, e2], cf, alpha / m) or pc.remaining:
+                continue
+            # the second must matter given the first, and the first given the second
+            if lead.fit.deviance - cf.deviance < _lr_threshold(alpha / m, e2.n_params):
+                continue
+            try:
+                alone = engine.fit_candidate(problem, current, e2, scr.estimate[e2.name])
+            except (np.linalg.LinAlgError, ValueError):
+                alone = None
+            if alone is not None and alone.deviance - cf.deviance < _lr_threshold(alpha / m, e1.n_params):
+                continue
+            if best is None or pc.aic_drop > best[0]:
+                pair = []
+                for name, form, margin, partner in ((lead.name, lead.form, lead.form_margin, e2.name),
+                                                    (e2.name, "", {}, lead.name)):
+                    n = Candidate(name, rnd, pc.approx_lr, fitted=True,
+                                  values={k: v for k, v in pc.values.items() if k.startswith(name + ".")},
+                                  lr=pc.lr, p=pc.p, q=pc.q, aic_drop=pc.aic_drop, cv_gain=pc.cv_gain,
+                                  structure_before=pc.structure_before, structure_after=pc.structure_after,
+                                  fit=cf, struct=pc.struct, form=form, form_margin=margin, acted=pc.acted,
+                                  partner=partner)
+                    n.se = {k: pc.se[k] for k in n.values}
+                    pair.append(n)
+                best = (pc.aic_drop, pair)
+    return best[1] if best else []
 
 
 def _lr_threshold(p: float, q: int) -> float:

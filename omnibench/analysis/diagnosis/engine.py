@@ -169,7 +169,9 @@ def _time_since_duty_change(t: pd.DataFrame) -> np.ndarray:
 
 def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] | None = None) -> Any:
     """`robot` declaring `effect` (its fitted parameters at `values`, default zero = absent)."""
-    vals = {p: 0.0 for p in effect.fit}
+    # absent: every size at zero; a shape parameter that cannot be zero (a Stribeck speed) at its start
+    specs = {p.name: p for p in effect.term.params}
+    vals = {p: (0.0 if specs[p].lower <= 0.0 else float(effect.start.get(p, specs[p].default))) for p in effect.fit}
     vals.update(values or {})
     effects = {k: dict(v) for k, v in robot.effects.items()}
     effects[effect.name] = effect.params(vals)
@@ -325,6 +327,20 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                 start[p] = v
     robot = _robot_with_effect(current.robot, effect, start)
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
+    return fit_model(problem, robot, free, max_nfev=max_nfev, passes=2, scale=current.scale)
+
+
+def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect],
+                   starts: Sequence[Mapping[str, float]], *, max_nfev: int = 20) -> ModelFit:
+    """Refit the current model's parameters together with several effects at once (a pair),
+    each starting from `starts` (values by 'effect.param', e.g. their single refits)."""
+    robot = current.robot
+    free = list(current.free)
+    for eff, st in zip(effects, starts):
+        vals = dict(eff.start)
+        vals.update({k.split(".", 1)[1]: v for k, v in st.items() if k.startswith(eff.name + ".")})
+        robot = _robot_with_effect(robot, eff, vals)
+        free += [f"{eff.name}.{p}" for p in eff.fit]
     return fit_model(problem, robot, free, max_nfev=max_nfev, passes=2, scale=current.scale)
 
 
