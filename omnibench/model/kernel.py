@@ -668,7 +668,7 @@ def _cache_dir() -> Path:
     path = Path(base) / "kernels"
     try:
         path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".write-test"
+        probe = path / f".write-test-{os.getpid()}"  # per process: parallel test workers share the folder
         probe.write_text("ok")
         probe.unlink()
         return path

@@ -68,17 +68,18 @@ def test_diagnose_finds_each_library_effect(omnibot, name):
 
 
 def test_clean_worlds_add_nothing(omnibot):
-    """Six seeds over campaigns that exercise every candidate (two each): at most one false addition
-    (the benchmark runs 20; six keep the suite's budget: sticking worlds on the ground are slow)."""
+    """Three seeds, one over each clean campaign (together they exercise every candidate): no
+    false addition (benchmarks/diagnose.py runs 20 clean worlds; three keep the suite's budget:
+    sticking worlds on the ground are slow)."""
     added = []
-    for seed in range(6):
+    for seed in range(3):
         spec = CLEAN[seed % len(CLEAN)]
         d = diagnose(omnibot, campaign(omnibot, spec, {}, seed=100 + seed))
         added += [(seed, c.name) for c in d.selected]
         # the declared model is right, so the held-out error cannot improve much either way
         for proc in d.before:
             assert d.after[proc]["nrmse"] == pytest.approx(d.before[proc]["nrmse"], rel=0.2)
-    assert len(added) <= 1, added
+    assert not added, added
 
 
 def test_an_effect_outside_the_candidates_is_reported_as_unexplained_structure(omnibot):
