@@ -34,6 +34,8 @@ from omnibench.sim.ammeter import SimAmmeter
 from omnibench.sim.board import SimBoard
 from omnibench.sim.world import World
 
+STATUS_REFRESH_S = 0.05  #: the status file is rewritten at least this often (s): tests wait for a fresh one
+
 _BAUD_OF = {getattr(termios, f"B{n}"): n for n in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600)
             if hasattr(termios, f"B{n}")}
 _MAX_PENDING = 65536   # bytes the board buffers for a host that does not read; older ones are lost
@@ -136,7 +138,7 @@ class PtyServer:
         key = (tuple(st["duties"]), tuple(st["faults"]), st["boot_id"], st["last_command"], st["mode"],
                st["payload"], st["disconnected"], serving)
         now = time.monotonic()
-        if not force and key == self._last_status and now - self._last_status_wall < 1.0:
+        if not force and key == self._last_status and now - self._last_status_wall < STATUS_REFRESH_S:
             return
         if key != self._last_status and self._last_status is not None:
             self._say(f"{st['last_command']}: duties {st['duties']} faults {st['faults'] or 'none'}")

@@ -41,10 +41,18 @@ class PtyTarget:
         self.url = served.path
 
     def status(self) -> dict:
+        """The server's status as written after this call: it reflects every frame the board
+        acknowledged before it (the server rewrites the file at least every 50 ms; a fixed
+        sleep was not enough on a loaded machine)."""
         import time
 
-        time.sleep(0.1)  # the server writes its status file within a loop tick
-        return self.served.status()
+        after = time.time()
+        for _ in range(400):
+            time.sleep(0.025)
+            st = self.served.status()
+            if st.get("wall_time", after) > after:
+                return st
+        raise AssertionError("the server's status file is not being refreshed")
 
 
 def _server(tmp_path_factory, clock: str):
