@@ -40,6 +40,15 @@ void core_send(core_t *c, uint8_t msg_id, const uint8_t *payload, uint8_t n) {
         c->frames_lost_tx++;
 }
 
+/* The board time a frame sent now carries: `now`, but never earlier than a frame already
+   sent (a sample latched after the caller read the clock may have gone out first). */
+static uint32_t stamp(core_t *c, uint32_t now) {
+    if ((int32_t)(now - c->last_stamp_us) < 0)
+        now = c->last_stamp_us;
+    c->last_stamp_us = now;
+    return now;
+}
+
 static void send_ack(core_t *c, uint8_t cmd_id, uint16_t cmd_seq, uint8_t status, uint32_t now) {
     msg_ack_t a = {.cmd_id = cmd_id, .cmd_seq = cmd_seq, .status = status, .time = now};
     uint8_t p[MSG_ACK_SIZE];
@@ -96,7 +105,37 @@ void core_boot(core_t *c, const core_identity_t *id, uint32_t boot_id, uint32_t 
     hal_reset_encoders();
     hal_cancel_sample();
     send_hello(c);
-    send_event(c, EVENT_BOOT, c->boot_id, now_us);
+    send_event(c, EVENT_BOOT, c->boot_id, stamp(c, now_us));
+}
+
+static void send_telemetry(core_t *c, const hal_sample_t *s) {
+    msg_telemetry_t t;
+    memset(&t, 0, sizeof t);
+    t.time = s->time_us;
+    if ((int32_t)(s->time_us - c->last_stamp_us) > 0)
+        c->last_stamp_us = s->time_us;
+    for (uint8_t i = 0; i < 4; i++) {
+        t.encoder[i] = s->encoder[i];
+        t.motor_current[i] = clip_i16(MILLI_TO_RAW(s->motor_current_ma[i], MSG_TELEMETRY_MOTOR_CURRENT_SCALE));
+        t.duty[i] = c->duty[i];
+    }
+    t.battery_voltage = clip_u16(MILLI_TO_RAW(s->battery_mv, MSG_TELEMETRY_BATTERY_VOLTAGE_SCALE));
+    t.battery_current = clip_i16(MILLI_TO_RAW(s->battery_current_ma, MSG_TELEMETRY_BATTERY_CURRENT_SCALE));
+    t.faults = c->faults;
+    uint8_t p[MSG_TELEMETRY_SIZE];
+    msg_telemetry_pack(p, &t);
+    core_send(c, MSG_TELEMETRY, p, sizeof p);
+}
+
+/* Send a latched sample before anything stamped later (an ACK, an EVENT): board time in
+   the frames the host receives never runs backwards (docs/protocol.md, Telemetry). */
+static void flush_sample(core_t *c) {
+    hal_sample_t s;
+    if (c->telemetry_period_us && hal_take_sample(&s)) {
+        send_telemetry(c, &s);
+        c->next_telemetry_us += c->telemetry_period_us;
+        hal_schedule_sample(c->next_telemetry_us);
+    }
 }
 
 /* One command; returns its ACK status. */
@@ -172,6 +211,8 @@ static void handle_chunk(core_t *c, uint32_t now) {
         return;  /* a bad CRC is not acknowledged: its seq cannot be trusted */
     }
     c->frames_ok++;
+    flush_sample(c);
+    now = stamp(c, now);
     c->last_rx_us = now;  /* every valid host frame restarts the watchdog */
     uint8_t id = body[0];
     uint16_t seq = wire_get_u16(body + 1);
@@ -205,38 +246,17 @@ void core_rx(core_t *c, const uint8_t *bytes, uint8_t n, uint32_t now_us) {
     }
 }
 
-static void send_telemetry(core_t *c, const hal_sample_t *s) {
-    msg_telemetry_t t;
-    memset(&t, 0, sizeof t);
-    t.time = s->time_us;
-    for (uint8_t i = 0; i < 4; i++) {
-        t.encoder[i] = s->encoder[i];
-        t.motor_current[i] = clip_i16(MILLI_TO_RAW(s->motor_current_ma[i], MSG_TELEMETRY_MOTOR_CURRENT_SCALE));
-        t.duty[i] = c->duty[i];
-    }
-    t.battery_voltage = clip_u16(MILLI_TO_RAW(s->battery_mv, MSG_TELEMETRY_BATTERY_VOLTAGE_SCALE));
-    t.battery_current = clip_i16(MILLI_TO_RAW(s->battery_current_ma, MSG_TELEMETRY_BATTERY_CURRENT_SCALE));
-    t.faults = c->faults;
-    uint8_t p[MSG_TELEMETRY_SIZE];
-    msg_telemetry_pack(p, &t);
-    core_send(c, MSG_TELEMETRY, p, sizeof p);
-}
-
 void core_poll(core_t *c, uint32_t now_us) {
+    flush_sample(c);
     uint8_t fresh = hal_fault_inputs() & (uint8_t)~c->faults;
     if (fresh) {
         latch(c, fresh);
-        send_event(c, EVENT_FAULT, fresh, now_us);
+        send_event(c, EVENT_FAULT, fresh, stamp(c, now_us));
     }
     if (core_running(c) && (int32_t)(now_us - c->last_rx_us) >= (int32_t)c->watchdog_us) {
         uint32_t silence_ms = (now_us - c->last_rx_us) / 1000UL;
         latch(c, FAULTS_WATCHDOG);
-        send_event(c, EVENT_WATCHDOG, silence_ms, now_us);
+        send_event(c, EVENT_WATCHDOG, silence_ms, stamp(c, now_us));
     }
-    hal_sample_t s;
-    if (c->telemetry_period_us && hal_take_sample(&s)) {
-        send_telemetry(c, &s);
-        c->next_telemetry_us += c->telemetry_period_us;
-        hal_schedule_sample(c->next_telemetry_us);
-    }
+    flush_sample(c);  /* a sample latched while the events went out */
 }

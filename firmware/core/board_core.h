@@ -28,6 +28,7 @@ typedef struct {
     uint32_t last_rx_us;
     uint32_t telemetry_period_us; /* 0 = telemetry off */
     uint32_t next_telemetry_us;
+    uint32_t last_stamp_us;       /* time of the last frame sent: no frame goes out stamped earlier */
     uint8_t rx[CORE_RX_CHUNK];
     uint8_t rx_n;
     uint8_t rx_overflow;

@@ -146,6 +146,23 @@ def test_telemetry_on_the_configured_schedule_with_applied_duties(core) -> None:
     assert times == list(range(6000, 30000, 5000))
 
 
+def test_frames_leave_in_board_time_order(core) -> None:
+    """A sample latched before a host frame or the watchdog is sent before the ACK or EVENT
+    stamped later (the host drops a frame whose time runs backwards), with the duty that was
+    applied when it was latched."""
+    _boot(core)
+    core.send(1000, "CONFIGURE", {"watchdog": 100, "telemetry_rate": 200})  # samples at 6000, 11000, ...
+    core.send(2000, "SET_DUTIES", {"duty": [10, 10, 10, 10]})
+    out = core.frames(core.send(6400, "PING"))  # the 6000 sample latched; the loop saw the PING first
+    assert [m.name for m in out] == ["TELEMETRY", "ACK"] and (out[0]["time"], out[1]["time"]) == (6000, 6400)
+    for t in range(11000, 102000, 5000):
+        core.cmd(f"poll {t}")
+    out = core.frames(core.cmd("poll 106400"))  # 100 ms after the PING; the 106000 sample latched
+    assert [(m.name, m["time"]) for m in out] == [("TELEMETRY", 106000), ("EVENT", 106400)]
+    assert out[0]["duty"] == (10, 10, 10, 10) and out[1]["arg"] == 100
+    assert core.frames(core.cmd("poll 111000"))[0]["duty"] == (0, 0, 0, 0)
+
+
 def test_garbage_and_bit_flips_never_move_a_motor(core) -> None:
     """Random bytes and 1-3 flipped bits in every kind of host frame (duties zero): no duty ever."""
     _boot(core)

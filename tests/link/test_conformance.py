@@ -17,6 +17,8 @@ from omnibench.sim import registry
 
 from omnibench.sim.testing import spawn_server
 
+WATCHDOG_RESOLUTION_S = 0.0005  #: how often a board checks its watchdog (the firmware: its 500 µs tick)
+
 
 class SimTarget:
     """The in-process simulator behind `sim://`."""
@@ -137,12 +139,20 @@ class TestBoardConformance:
         with Board.open(target.url, heartbeat=False) as b:
             b.clear_faults()
             b.configure(telemetry_hz=200, watchdog_s=0.1)
+            retries = b.stats.retries
             b.set_duties([0.3] * 4)
             t_cmd = b.board_time
             s = b.wait(0.3)
             stopped = [x for x in s if x.t > t_cmd and x.duty == (0.0, 0.0, 0.0, 0.0)]
             assert stopped, "motors still running after the watchdog timeout"
-            assert stopped[0].t <= t_cmd + 0.1 + 0.005 + 1e-6
+            silences = [arg for _, code, arg in b.stats.events if code == "WATCHDOG"]
+            assert silences and 100 <= silences[-1] <= 101  # the timeout, to the board's 0.5 ms tick
+            # within the timeout, the board's check interval and one telemetry period of the
+            # command; a resend (sent once the ACK is 30 ms + a period of board time late)
+            # restarts the timeout, and is allowed for
+            late = (b.stats.retries - retries) * (0.03 + 0.005 + 0.002)
+            assert stopped[0].t <= t_cmd + 0.1 + WATCHDOG_RESOLUTION_S + 0.005 + late + 1e-6
+            assert b.stats.time_faults == 0  # board time never ran backwards (a sample sent after a later ACK or EVENT)
             assert "WATCHDOG" in b.fault_names(stopped[0].faults)
             assert target.status()["motors_stopped"]
             with pytest.raises(BoardError, match="WATCHDOG"):
