@@ -247,16 +247,20 @@ void core_rx(core_t *c, const uint8_t *bytes, uint8_t n, uint32_t now_us) {
 }
 
 void core_poll(core_t *c, uint32_t now_us) {
-    flush_sample(c);
+    /* motors first, words after: a fault or the watchdog stops them before anything is sent */
     uint8_t fresh = hal_fault_inputs() & (uint8_t)~c->faults;
-    if (fresh) {
+    if (fresh)
         latch(c, fresh);
-        send_event(c, EVENT_FAULT, fresh, stamp(c, now_us));
-    }
-    if (core_running(c) && (int32_t)(now_us - c->last_rx_us) >= (int32_t)c->watchdog_us) {
-        uint32_t silence_ms = (now_us - c->last_rx_us) / 1000UL;
+    uint32_t silence_ms = 0;
+    uint8_t silent = core_running(c) && (int32_t)(now_us - c->last_rx_us) >= (int32_t)c->watchdog_us;
+    if (silent) {
+        silence_ms = (now_us - c->last_rx_us) / 1000UL;
         latch(c, FAULTS_WATCHDOG);
-        send_event(c, EVENT_WATCHDOG, silence_ms, stamp(c, now_us));
     }
+    flush_sample(c);  /* a sample latched before now goes out before the events stamped now */
+    if (fresh)
+        send_event(c, EVENT_FAULT, fresh, stamp(c, now_us));
+    if (silent)
+        send_event(c, EVENT_WATCHDOG, silence_ms, stamp(c, now_us));
     flush_sample(c);  /* a sample latched while the events went out */
 }
