@@ -190,7 +190,9 @@ class TestBoardConformance:
         with Board.open(target.url) as b:
             rtts = [b.ping() for _ in range(3)]
             assert all(r > 0 for r in rtts)
-            assert b.stats.retries == 0
+            # a clean link loses and corrupts nothing (a resend after 0.1 s of a loaded host is
+            # not a link error, so retries are not asserted)
+            assert b.stats.lost == 0 and b.stats.crc_errors == 0 and b.stats.time_faults == 0
 
     def test_bad_duties_refused_before_sending(self, target) -> None:
         with Board.open(target.url) as b:
