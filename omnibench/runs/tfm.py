@@ -65,6 +65,7 @@ SQUARE_SKETCH = {"sketch": "arduino/square/square.ino", "command_order": [1, 2, 
 RC_SKETCH = {"sketch": "arduino/ardu.ino.ino", "command_order": [1, 2, 4, 3],
              "commands": "before reading the encoders", "packet_s": PACKET_S, "command_offset_s": -4 * PACKET_S,
              "channels": {"FL": "128/1", "FR": "128/2", "RL": "129/2", "RR": "129/1"}}
+SKETCHES = {"square": SQUARE_SKETCH, "rc": RC_SKETCH}
 
 
 def parse_signs(text: str) -> tuple[int, int, int, int]:
@@ -112,21 +113,30 @@ def import_tfm(
     *,
     signs: Sequence[int] | None = None,
     run_dir: Path | None = None,
+    sketch: str | None = None,
 ) -> Path:
-    """Convert one 2019 TFM .mat file into a run directory under `out`; returns its path."""
+    """Convert one 2019 TFM .mat file into a run directory under `out`; returns its path.
+    `sketch` ("square" or "rc") says which 2019 sketch recorded it, when you know better than
+    the data README (default: the RC sketch for the RC log, the square-wave sketch otherwise;
+    for results_ground_x.mat the README names no sketch, so that one is marked assumed)."""
     file = Path(file)
+    if sketch is not None and sketch not in SKETCHES:
+        raise UserError(f"unknown sketch {sketch!r}: give one of {', '.join(SKETCHES)}")
     data = _load(file)
     try:
         kind = kind_of(data)
     except UserError as exc:
         raise UserError(f"{file}: {exc}") from None
+    given = {**SKETCHES[sketch], "source": "given at import"} if sketch else None
     if kind == "jacked":
-        return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir)
+        return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or SQUARE_SKETCH)
     if kind == "ground":
-        return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir)
+        assumed = {**SQUARE_SKETCH, "source": "assumed: the data README names no sketch for this file "
+                                              "(sampling like the square-wave logs'); give --sketch if you know"}
+        return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or assumed)
     if kind == "rc":
-        return _import_rc(file, data, Path(out), signs, run_dir)
-    return _import_square(file, data, Path(out), tuple(signs or RAW_SIGNS), run_dir)
+        return _import_rc(file, data, Path(out), signs, run_dir, given or RC_SKETCH)
+    return _import_square(file, data, Path(out), tuple(signs or RAW_SIGNS), run_dir, given or SQUARE_SKETCH)
 
 
 def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, Any] = SQUARE_SKETCH) -> dict[str, Any]:
@@ -142,7 +152,7 @@ def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, A
 
 
 def _import_jacked(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
-                   run_dir: Path | None) -> Path:
+                   run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH) -> Path:
     ws = np.asarray(data["ws"], dtype=float)
     amps = np.asarray(data["amps"]).ravel().astype(int)
     if ws.shape[0] != 4 or ws.shape[1] != amps.size:
@@ -157,7 +167,7 @@ def _import_jacked(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
         last_cmd = int(round(float(np.median(x)) * 127))
     w = RunWriter.create(
         out, "upside_down_sweep", run_dir=run_dir, name=Path(file).stem, counts_per_rev=COUNTS_PER_REV,
-        extra={**_base_extra(file, signs, "results_jacked"), "mode": "upside_down",
+        extra={**_base_extra(file, signs, "results_jacked", timing), "mode": "upside_down",
                "steps_planned": int(run_cols.size),
                "notes": "Steady speeds per amplitude from `ws`; raw samples only for the last "
                         "amplitude run (t, x, m). Wheel loads were not recorded."},
@@ -193,23 +203,23 @@ def _import_jacked(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
 
 
 def _import_square(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
-                   run_dir: Path | None) -> Path:
+                   run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH) -> Path:
     d = np.asarray(data["data"]).astype(np.int64)
     return _import_trace(file, out, run_dir, "step_response", d[0], d[1] / 1000.0, d[3:7], signs,
-                         _base_extra(file, signs, "square_wave"), "step_response",
+                         _base_extra(file, signs, "square_wave", timing), "step_response",
                          "Square-wave command on all four motors, wheels in the air. "
                          "Time is Arduino millis()/1000 (irregular 17-45 ms sampling).")
 
 
 def _import_ground(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
-                   run_dir: Path | None) -> Path:
+                   run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH) -> Path:
     t = np.asarray(data["t"], dtype=float).ravel()
     x = np.asarray(data["x"], dtype=float).ravel()
     m = np.asarray(data["m"], dtype=float)
     if m.shape != (4, t.size) or x.size != t.size:
         raise UserError(f"{file}: `m` should be 4 x {t.size} like `t` and `x`, is {m.shape}")
     gains = {k: np.asarray(data[k], dtype=float).tolist() for k in ("Ks", "fits", "Ts") if k in data}
-    extra = {**_base_extra(file, signs, "results_ground"), "mode": "ground", "fitted_gains": gains,
+    extra = {**_base_extra(file, signs, "results_ground", timing), "mode": "ground", "fitted_gains": gains,
              "fitted_gains_note": "2019 per-amplitude process-model fits: Ks wheel rev/s per unit duty, "
                                   "fits percent (NaN where not run), Ts time constants (s)"}
     return _import_trace(file, out, run_dir, "step_response", np.round(x * 127).astype(np.int64), t,
@@ -229,12 +239,12 @@ def data_signs(drive: np.ndarray, counts: np.ndarray) -> tuple[int, ...]:
 
 
 def _import_rc(file: Path, data: dict[str, Any], out: Path, signs: Sequence[int] | None,
-               run_dir: Path | None) -> Path:
+               run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH) -> Path:
     d = np.asarray(data["data"], dtype=float)
     millis, value, counts = d[0].astype(np.int64), d[1], d[2:6].astype(np.int64)
     cmd = np.trunc(127 * value).astype(np.int64)  # the sketch: command = trunc(127 x value)
     sgn = tuple(signs) if signs else data_signs(cmd, counts)
-    extra = {**_base_extra(file, sgn, "rc_log", RC_SKETCH),
+    extra = {**_base_extra(file, sgn, "rc_log", timing),
              "sign_map_source": "given" if signs else "read off the data (speed against command)"}
     return _import_trace(file, out, run_dir, "random_duty", cmd, millis / 1000.0, counts, sgn, extra,
                          "duty_hold",

@@ -120,6 +120,31 @@ def test_floor_runs_import_as_ground_step_responses_with_their_fitted_gains(tmp_
     assert ft["packet_s"] == pytest.approx(4 * 10 / 9600)
 
 
+def test_floor_run_timing_is_marked_assumed_and_a_known_sketch_can_be_given(tmp_path):
+    """The data README names no sketch for results_ground_x.mat: its timing is the square-wave
+    sketch's, marked assumed; `--sketch rc` records the RC sketch's instead, and the analysis
+    reads that (commands 4 packets before the time stamp, in the RC sketch's order)."""
+    ft = read_run(import_tfm(DATA / "results_ground_x.mat", tmp_path / "a")).metadata["firmware_timing"]
+    assert ft["source"].startswith("assumed") and ft["command_offset_s"] == 0.0
+    assert "source" not in read_run(import_tfm(DATA / "square_fast.mat", tmp_path / "b")).metadata["firmware_timing"]
+    exe = [sys.executable, "-m", "omnibench", "import", "tfm", str(DATA / "results_ground_x.mat")]
+    out = subprocess.run(exe + ["--sketch", "rc", "--out", str(tmp_path / "c"), "--json"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    run = read_run(json.loads(out.stdout)[0]["run"])
+    ft = run.metadata["firmware_timing"]
+    assert ft["source"] == "given at import" and ft["command_order"] == [1, 2, 4, 3]
+    assert ft["command_offset_s"] == pytest.approx(-4 * 4 * 10 / 9600)
+    from omnibench.analysis.observations import Observations
+
+    obs = Observations.from_runs([run.path])
+    info = obs.runs[obs.run_ids[0]]
+    assert info["command_offset"] == pytest.approx(-4 * 4 * 10 / 9600) and info["command_order"] == (1, 2, 4, 3)
+    bad = subprocess.run(exe + ["--sketch", "arduino", "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--sketch" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_rc_log_imports_as_random_duty_with_signs_read_off_the_data(tmp_path):
     run = read_run(import_tfm(DATA / "inputs.mat", tmp_path))
     d = _mat("inputs.mat")["data"]
