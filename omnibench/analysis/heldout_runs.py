@@ -55,6 +55,10 @@ class RunError:
     #: per label, the held-out trace's wheel speeds (measured, predicted), (n, 4) each in time
     #: order: what `heldout_noise` resamples (traces only; empty for a sweep)
     series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
+    #: a run whose firmware timing is assumed: per other documented timing (its sketch), the
+    #: same models' NRMSE and series with that timing (the fits are the same: trained elsewhere)
+    alternatives: dict[str, dict[str, float]] = field(default_factory=dict)
+    alt_series: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] = field(default_factory=dict, repr=False)
 
 
 def _run_kind(obs: Observations, run: str) -> str:
@@ -137,11 +141,17 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
             continue
         train = obs.select(runs=train_runs)
         err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
+        alts = _timing_alternatives(obs, held)
         for label, model in models.items():
             say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
-            err.nrmse[label], series = _run_error(fit_physics(model, train, max_nfev), obs, held)
+            fitted = fit_physics(model, train, max_nfev)
+            err.nrmse[label], series = _run_error(fitted, obs, held)
             if series is not None:
                 err.series[label] = series
+            for sketch, alt_obs in alts.items():
+                err.alternatives.setdefault(sketch, {})[label], s_alt = _run_error(fitted, alt_obs, held)
+                if s_alt is not None:
+                    err.alt_series.setdefault(sketch, {})[label] = s_alt
         held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []
         train_tr = baseline.traces(obs, train_runs)
         if baselines and held_tr and train_tr:
@@ -149,6 +159,19 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
                 say(f"{held}: fitting {label}")
                 err.nrmse[label] = baseline.fit_black_box(train_tr, dead).nrmse(held_tr[0])
         out.append(err)
+    return out
+
+
+def _timing_alternatives(obs: Observations, run: str) -> dict[str, Observations]:
+    """For a run whose firmware timing is assumed: per other documented timing (by sketch),
+    `obs` with that timing for the run (observations.py `timing_alternatives`)."""
+    from dataclasses import replace
+
+    info = obs.runs.get(run, {})
+    out = {}
+    for alt in info.get("timing_alternatives", []):
+        runs = {**obs.runs, run: {**info, "command_order": alt["command_order"], "command_offset": alt["command_offset"]}}
+        out[alt["sketch"]] = replace(obs, runs=runs)
     return out
 
 
@@ -163,6 +186,10 @@ def table(errors: Sequence[RunError]) -> str:
         lines.append(f"{e.run[:44]:<44} {e.kind:<13} "
                      + " ".join(f"{100 * e.nrmse[x]:>{width - 2}.2f} %" if x in e.nrmse else f"{'--':>{width}}"
                                 for x in labels))
+        for sketch, alt in e.alternatives.items():  # its timing is assumed: the other documented one
+            lines.append(f"{'  with the timing of ' + sketch:<44.44} {'':<13} "
+                         + " ".join(f"{100 * alt[x]:>{width - 2}.2f} %" if x in alt else f"{'--':>{width}}"
+                                    for x in labels))
     air = [e for e in errors if e.kind == "in-air trace"]
     if air:
         means = {x: float(np.mean([e.nrmse[x] for e in air if x in e.nrmse])) for x in labels

@@ -306,7 +306,8 @@ def supply_at_rest(samples: pd.DataFrame) -> float:
 
 def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
     """Where the robot was and how its firmware timed the commands (runs.tfm records both):
-    `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s)."""
+    `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s),
+    and `timing_alternatives` when the timing is assumed (the other documented timings)."""
     out: dict[str, Any] = {}
     if meta.get("mode") in ("ground", "upside_down"):
         out["mode"] = meta["mode"]
@@ -316,6 +317,12 @@ def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
         if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
             out["command_order"] = tuple(int(w) for w in order)
         out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
+        if str(ft.get("source", "")).startswith("assumed"):
+            # the run's timing is a guess: the other documented timings it may have had
+            out["timing_alternatives"] = [
+                {"sketch": str(a.get("sketch", "?")), "command_order": tuple(int(w) for w in a["command_order"]),
+                 "command_offset": _num(a.get("command_offset_s", 0.0))}
+                for a in ft.get("alternatives", []) if isinstance(a, Mapping) and "command_order" in a]
     return out
 
 

@@ -131,8 +131,10 @@ def import_tfm(
     if kind == "jacked":
         return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or SQUARE_SKETCH)
     if kind == "ground":
+        other = {k: RC_SKETCH[k] for k in ("sketch", "command_order", "commands", "command_offset_s")}
         assumed = {**SQUARE_SKETCH, "source": "assumed: the data README names no sketch for this file "
-                                              "(sampling like the square-wave logs'); give --sketch if you know"}
+                                              "(sampling like the square-wave logs'); give --sketch if you know",
+                   "alternatives": [other]}
         return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or assumed)
     if kind == "rc":
         return _import_rc(file, data, Path(out), signs, run_dir, given or RC_SKETCH)

@@ -98,3 +98,53 @@ def test_the_sweep_stage_fits_what_the_sweep_alone_shows():
     assert _sweep_measures("asymmetric_coulomb.db", both_ways)
     assert not _sweep_measures("stribeck_friction.b_s", one_way)  # shows in step responses too
     assert not _sweep_measures("actuator_lag.tau_a", one_way) and not _sweep_measures("I_w", one_way)
+
+
+def test_a_run_with_assumed_timing_vetoes_only_under_every_documented_timing(robot, monkeypatch):
+    """The floor run's sketch is not documented: a loss under the assumed timing that the other
+    documented timing does not show is reported as not counted; a loss under both is a trade-off."""
+    labels = ["declared", "declared + I_w", "+ per_wheel_latency", "+ asymmetric_coulomb"]
+    floor = RunError("floor", "floor trace", "wheel speed", dict(zip(labels, [0.18, 0.18, 0.20, 0.20])),
+                     alternatives={"ardu.ino": dict(zip(labels, [0.32, 0.15, 0.13, 0.13]))})
+    fast = RunError("fast", "in-air trace", "wheel speed", dict(zip(labels, [0.40, 0.16, 0.05, 0.05])))
+    monkeypatch.setattr(loro, "leave_one_run_out", lambda *a, **k: [floor, fast])
+    h = loro.heldout_runs(_diag(robot), obs=None)
+    assert h.tradeoffs == [] and h.accepted == 3
+    assert [(u["addition"], u["run"]) for u in h.unproven] == [("per_wheel_latency", "floor"),
+                                                               ("asymmetric_coulomb", "floor")]
+    assert "not counted: per_wheel_latency makes floor worse with its assumed firmware timing (18.00 % -> 20.00 %)" in h.text()
+    assert "with the timing of ardu.ino" in table([floor, fast])
+    floor.alternatives["ardu.ino"]["+ per_wheel_latency"] = 0.40  # worse under that timing too
+    h = loro.heldout_runs(_diag(robot), obs=None)
+    assert [t["addition"] for t in h.tradeoffs] == ["per_wheel_latency"]
+    assert h.stages[h.accepted] == "declared + I_w"  # it and every later addition left out
+
+
+def test_loro_predicts_a_run_with_assumed_timing_under_each_documented_timing(robot):
+    """The floor fold's model is trained on the air runs alone; the floor run is predicted with its
+    assumed timing and with the other sketch's (commands 4 packets earlier, another order): the
+    predictions differ, and a run with documented timing gets no alternatives."""
+    from omnibench.analysis.heldout_runs import PhysicsModel, _timing_alternatives, leave_one_run_out
+    from omnibench.analysis.observations import Observations
+    from omnibench.runs.tfm import import_tfm
+
+    data = Path(__file__).resolve().parents[3] / "shared" / "data" / "omnibot-tfm"
+    if not data.is_dir():
+        data = Path("/work/shared/data/omnibot-tfm")
+    if not data.is_dir():
+        pytest.skip("2019 TFM data not available")
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for f in ("results_jacked.mat", "results_ground_x.mat"):
+            import_tfm(data / f, tmp)
+        obs = Observations.from_runs([tmp], robot)
+        floor = next(r for r in obs.run_ids if obs.runs[r].get("mode") == "ground")
+        sweep = next(r for r in obs.run_ids if r != floor)
+        assert list(_timing_alternatives(obs, floor)) == ["arduino/ardu.ino.ino"] and not _timing_alternatives(obs, sweep)
+        alt = _timing_alternatives(obs, floor)["arduino/ardu.ino.ino"].runs[floor]
+        assert alt["command_order"] == (1, 2, 4, 3) and alt["command_offset"] == pytest.approx(-4 * 4 * 10 / 9600)
+        errs = leave_one_run_out({"declared": PhysicsModel(robot, free=["a", "b"])}, obs, baselines=False)
+        e = next(x for x in errs if x.run == floor)
+        other = e.alternatives["arduino/ardu.ino.ino"]["declared"]
+        assert 0 < e.nrmse["declared"] < 1 and 0 < other < 1 and abs(other - e.nrmse["declared"]) > 0.01

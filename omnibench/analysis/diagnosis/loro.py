@@ -8,7 +8,10 @@ run. An addition whose stage predicts some run worse than the declared model by 
 TOLERANCE (relative; compared with the declared model, as diagnose's own held-out check, so
 small losses cannot pile up) and, for a trace, by more than its noise (two standard errors of
 the change by a moving-block bootstrap over the trace, analysis/heldout_noise.py) is a trade-off: reported with the runs it costs and what it gains,
-and it and every later addition are left out of the model `--out` writes (`accepted`).
+and it and every later addition are left out of the model `--out` writes (`accepted`). A run
+whose firmware timing is assumed (the 2019 floor run: no sketch documented) counts against an
+addition only if it is worse under every documented timing it may have had; a loss under the
+assumed timing alone is reported as not counted.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ class HeldOutRuns:
     errors: list[RunError]
     tradeoffs: list[dict[str, Any]] = field(default_factory=list)
     accepted: int = 0  # additions before the first trade-off
+    #: losses on a run with assumed firmware timing that another documented timing does not show
+    unproven: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def additions(self) -> list[str]:
@@ -45,6 +50,12 @@ class HeldOutRuns:
             better = ", ".join(f"{r} {100 * a:.2f} % -> {100 * b:.2f} %" for r, (a, b) in t["better"].items())
             lines.append(f"trade-off: {t['addition']} makes {worse} worse"
                          + (f" (while {better} improve)" if better else ""))
+        for u in self.unproven:
+            alts = ", ".join(f"{100 * a:.2f} % -> {100 * b:.2f} % with the timing of {s}"
+                             for s, (a, b) in u["alternatives"].items() if a is not None and b is not None)
+            lines.append(f"not counted: {u['addition']} makes {u['run']} worse with its assumed firmware timing "
+                         f"({100 * u['assumed'][0]:.2f} % -> {100 * u['assumed'][1]:.2f} %) but not {alts}: "
+                         f"the run's timing is not documented")
         if not self.tradeoffs:
             lines.append(f"no addition makes any run's held-out error worse than the declared model's "
                          f"(beyond {100 * TOLERANCE:.0f} % and its noise)")
@@ -55,8 +66,10 @@ class HeldOutRuns:
 
     def to_json(self) -> dict[str, Any]:
         return {"stages": self.stages, "tolerance": TOLERANCE, "tradeoffs": self.tradeoffs,
-                "accepted": self.additions[:self.accepted],
-                "runs": [{"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in self.errors]}
+                "accepted": self.additions[:self.accepted], "unproven": self.unproven,
+                "runs": [{"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse,
+                          **({"nrmse_with_other_timing": e.alternatives} if e.alternatives else {})}
+                         for e in self.errors]}
 
 
 def stage_models(diag: Any) -> dict[str, PhysicsModel]:
@@ -88,33 +101,54 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
     models = stage_models(diag)
     errors = leave_one_run_out(models, obs, baselines=True, progress=progress)
     labels = list(models)
-    trade = []
+    trade, accepted, unproven = find_tradeoffs(labels, errors)
+    return HeldOutRuns(labels, errors, trade, accepted, unproven)
+
+
+def find_tradeoffs(labels: list[str], errors: list[RunError]) -> tuple[list[dict[str, Any]], int, list[dict[str, Any]]]:
+    """The trade-offs among the stages `labels` (declared first), how many additions come before
+    the first, and the losses not counted: a run whose firmware timing is assumed vetoes an
+    addition only if it is worse under every documented timing it may have had (a loss under
+    the assumed one alone rests on the assumption, and is reported, not counted)."""
+    trade, unproven = [], []
     accepted = len(labels) - 1
-    for k, (prev, cur) in enumerate(zip(labels, labels[1:])):
+    for k, cur in enumerate(labels[1:]):
+        addition = cur.lstrip("+ ").split(" + ")[-1]
         worse, better = {}, {}
         for e in errors:
             a, b = e.nrmse.get(labels[0]), e.nrmse.get(cur)
             if a is None or b is None:
                 continue
-            if b > (1 + TOLERANCE) * a and _beyond_noise(e, labels[0], cur):
-                worse[e.run] = (a, b)
+            if _worse(a, b, e.series, labels[0], cur):
+                others = {s: (alt.get(labels[0]), alt.get(cur)) for s, alt in e.alternatives.items()}
+                if all(x is not None and y is not None and _worse(x, y, e.alt_series.get(s, {}), labels[0], cur)
+                       for s, (x, y) in others.items()):
+                    worse[e.run] = (a, b)
+                else:
+                    unproven.append({"addition": addition, "run": e.run, "assumed": (a, b),
+                                     "alternatives": others})
             elif b < (1 - TOLERANCE) * a:
                 better[e.run] = (a, b)
         if worse:
-            trade.append({"addition": cur.lstrip("+ ").split(" + ")[-1], "worse": worse, "better": better})
+            trade.append({"addition": addition, "worse": worse, "better": better})
             accepted = min(accepted, k)
-    return HeldOutRuns(labels, errors, trade, accepted)
+    return trade, accepted, unproven
 
 
-def _beyond_noise(e: RunError, base: str, cur: str) -> bool:
-    """Is run e's loss from `base` to `cur` beyond its noise? For a trace: more than 2 block-
-    bootstrap standard errors (analysis/heldout_noise.py); without the trace (a sweep): yes."""
+def _worse(a: float, b: float, series: dict[str, Any], base: str, cur: str) -> bool:
+    """From NRMSE a to b: worse by more than TOLERANCE and beyond the run's noise."""
+    return b > (1 + TOLERANCE) * a and _beyond_noise(series, base, cur)
+
+
+def _beyond_noise(series: dict[str, Any], base: str, cur: str) -> bool:
+    """Is a run's loss from `base` to `cur` beyond its noise? For a trace (its `series`): more
+    than 2 block-bootstrap standard errors (analysis/heldout_noise.py); without (a sweep): yes."""
     from omnibench.analysis.heldout_noise import worse_beyond_noise
 
-    if base not in e.series or cur not in e.series:
+    if base not in series or cur not in series:
         return True
-    m, pa = e.series[base]
-    return worse_beyond_noise(m, pa, e.series[cur][1])
+    m, pa = series[base]
+    return worse_beyond_noise(m, pa, series[cur][1])
 
 
 def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
