@@ -54,11 +54,12 @@ class HeldOutRuns:
             alts = ", ".join(f"{100 * a:.2f} % -> {100 * b:.2f} % with the timing of {s}"
                              for s, (a, b) in u["alternatives"].items() if a is not None and b is not None)
             lines.append(f"not counted: {u['addition']} makes {u['run']} worse with its assumed firmware timing "
-                         f"({100 * u['assumed'][0]:.2f} % -> {100 * u['assumed'][1]:.2f} %) but not {alts}: "
-                         f"the run's timing is not documented")
+                         f"({100 * u['assumed'][0]:.2f} % -> {100 * u['assumed'][1]:.2f} %), not {alts}: "
+                         f"the run's timing is not documented, so the loss is reported, not counted")
         if not self.tradeoffs:
             lines.append(f"no addition makes any run's held-out error worse than the declared model's "
-                         f"(beyond {100 * TOLERANCE:.0f} % and its noise)")
+                         f"(beyond {100 * TOLERANCE:.0f} % and its noise"
+                         + (", under every firmware timing the run may have had)" if self.unproven else ")"))
         else:
             kept = ", ".join(self.additions[:self.accepted]) or "nothing"
             lines.append(f"accepted on held-out runs: {kept} (trade-offs are reported, not added to the written model)")
