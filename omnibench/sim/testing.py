@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import select
 import signal
@@ -23,13 +24,21 @@ class Served:
     lines: list[str]
 
     def status(self) -> dict:
-        """The server's status file (its board's duties, faults, last command...)."""
-        for _ in range(50):
+        """The server's status file (its board's duties, faults, last command...): while it
+        serves, one written after this call (it is rewritten at least every 50 ms), so it holds
+        every command the board acknowledged before; once it has exited, its last."""
+        after = time.time()
+        deadline = time.monotonic() + 20.0
+        st = None
+        while time.monotonic() < deadline:
             try:
-                return json.loads(self.status_file.read_text())
+                st = json.loads(self.status_file.read_text())
             except (FileNotFoundError, json.JSONDecodeError):
-                time.sleep(0.05)
-        raise AssertionError("status file never appeared")
+                st = None
+            if st is not None and (self.proc.poll() is not None or st.get("wall_time", math.inf) > after):
+                return st
+            time.sleep(0.02)
+        raise AssertionError("status file never appeared" if st is None else "the status file is not being refreshed")
 
     def stop(self, sig: int = signal.SIGTERM) -> int:
         """Signal the server and wait for it (kills it after 10 s); returns its exit code."""
