@@ -28,11 +28,11 @@ def campaign(robot, spec, world, seed, generator="independent"):
     return _campaign(robot, spec, world, seed=seed, generator=generator)
 
 
-# The CoM offset acts through the roller friction on the ground, where the model's sign is
-# still regularised (docs/robot-file.md): against rollers that really stick (the independent
-# world) its fitted offset comes out ~18x small. Until the ground sticks too, it is checked on
-# the model's own simulator (the independent figure is in README / docs/diagnose.md).
-OWN_SIMULATOR = {"com_offset"}
+# The CoM offset acts through the roller friction on the ground. With rollers that barely slip
+# (the robot file's narrow roller sign, as the independent world's rollers stick) its fitted size
+# is right, but it changes the forward runs' residual by ~1 %: it is found and sized, and the
+# error it removes is checked to fall, not to halve.
+SMALL_ON_THE_GROUND = {"com_offset"}
 
 TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral",
             "energy_trajectories": "energy", "step_response": "step_response"}
@@ -42,7 +42,7 @@ TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_ru
 def test_diagnose_finds_each_library_effect(omnibot, name):
     effect = EFFECTS[name]
     spec = REVEALING[name]
-    obs = campaign(omnibot, spec, effect.world(), seed=11, generator="model" if name in OWN_SIMULATOR else "independent")
+    obs = campaign(omnibot, spec, effect.world(), seed=11)
     d = diagnose(omnibot, obs)
     assert d.selected, f"{name}: nothing added; rejected: {[(c.name, c.reason) for c in d.rejected[:3]]}"
     first = d.selected[0]
@@ -59,7 +59,8 @@ def test_diagnose_finds_each_library_effect(omnibot, name):
     shown = [TABLE_OF[p] for p in effect.procedures if TABLE_OF[p] in d.before]
     assert shown, "the campaign must contain a procedure the effect shows in"
     for proc in shown:
-        assert d.after[proc]["nrmse"] <= 0.5 * d.before[proc]["nrmse"], (proc, d.before[proc], d.after[proc])
+        factor = 1.0 if name in SMALL_ON_THE_GROUND else 0.5
+        assert d.after[proc]["nrmse"] < factor * d.before[proc]["nrmse"], (proc, d.before[proc], d.after[proc])
     assert len(d.selected) == 1  # and nothing else rides along
     # "added" reports the final model's values
     assert all(first.values[k] == d.final_fit.values[k] for k in first.values)

@@ -217,7 +217,9 @@ def test_com_offset_sideways_makes_a_straight_run_curve(omnibot):
     scen = [Scenario(), Scenario(effects={"com_offset": {"dx": 0.0, "dy": 0.03}})]
     res = simulate_batch(omnibot, scen, [0.0, 1.5], [[0.5] * 4, [0.0] * 4], 2.5, record_every=100)
     psi = res.signal("psi")[:, -1]
-    assert abs(psi[0]) < 1e-9 and abs(psi[1]) > 1e-3
+    # small: the rollers barely slip, so the heavier side's extra rolling resistance turns the
+    # robot by a fraction of a milliradian in 2.5 s (a creeping roller model made it 8 mrad)
+    assert abs(psi[0]) < 1e-9 and abs(psi[1]) > 1e-4
 
 
 def test_battery_resistance_sags_the_voltage_with_current(omnibot):
