@@ -69,8 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         for t in held.tradeoffs:
             t["worse"] = {name(r): v for r, v in t["worse"].items()}
             t["better"] = {name(r): v for r, v in t["better"].items()}
-        for u in held.unproven:
-            u["run"] = name(u["run"])
+        held.timing = {name(r): v for r, v in held.timing.items()}
         print(held.text())
         print(f"(leave-one-run-out: {time.time() - t0:.0f} s)")
         if args.json:

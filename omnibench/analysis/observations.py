@@ -307,7 +307,8 @@ def supply_at_rest(samples: pd.DataFrame) -> float:
 def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
     """Where the robot was and how its firmware timed the commands (runs.tfm records both):
     `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s),
-    and `timing_alternatives` when the timing is assumed (the other documented timings)."""
+    and, when the timing is assumed, `timing_sketch` (the sketch assumed) and `timing_alternatives`
+    (the other documented timings)."""
     out: dict[str, Any] = {}
     if meta.get("mode") in ("ground", "upside_down"):
         out["mode"] = meta["mode"]
@@ -318,7 +319,8 @@ def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
             out["command_order"] = tuple(int(w) for w in order)
         out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
         if str(ft.get("source", "")).startswith("assumed"):
-            # the run's timing is a guess: the other documented timings it may have had
+            # the run's timing is a guess: the sketch assumed and the other documented timings
+            out["timing_sketch"] = str(ft.get("sketch", "the assumed timing"))
             out["timing_alternatives"] = [
                 {"sketch": str(a.get("sketch", "?")), "command_order": tuple(int(w) for w in a["command_order"]),
                  "command_offset": _num(a.get("command_offset_s", 0.0))}

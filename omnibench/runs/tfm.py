@@ -132,8 +132,9 @@ def import_tfm(
         return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or SQUARE_SKETCH)
     if kind == "ground":
         other = {k: RC_SKETCH[k] for k in ("sketch", "command_order", "commands", "command_offset_s")}
-        assumed = {**SQUARE_SKETCH, "source": "assumed: the data README names no sketch for this file "
-                                              "(sampling like the square-wave logs'); give --sketch if you know",
+        assumed = {**SQUARE_SKETCH, "source": "assumed: the data README names no sketch for the floor "
+                                              "runs (results_ground_x.mat samples every 35 ms, between the square-wave "
+                                              "logs' 30 ms and the RC log's 44 ms); give --sketch if you know",
                    "alternatives": [other]}
         return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or assumed)
     if kind == "rc":

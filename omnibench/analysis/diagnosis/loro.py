@@ -9,15 +9,18 @@ TOLERANCE (relative; compared with the declared model, as diagnose's own held-ou
 small losses cannot pile up) and, for a trace, by more than its noise (two standard errors of
 the change by a moving-block bootstrap over the trace, analysis/heldout_noise.py) is a trade-off: reported with the runs it costs and what it gains,
 and it and every later addition are left out of the model `--out` writes (`accepted`). A run
-whose firmware timing is assumed (the 2019 floor run: no sketch documented) counts against an
-addition only if it is worse under every documented timing it may have had; a loss under the
-assumed timing alone is reported as not counted.
+whose firmware timing is not documented (the 2019 floor run: no sketch named) is scored per
+stage with the documented timing that predicts it better (its timing is a nuisance with two
+known values, profiled out, so no model is judged by a guess); the table shows both timings and
+the report names the one each stage chose.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any, Callable
+
+import numpy as np
 
 from omnibench.analysis.heldout_runs import PhysicsModel, RunError, leave_one_run_out
 
@@ -32,8 +35,8 @@ class HeldOutRuns:
     errors: list[RunError]
     tradeoffs: list[dict[str, Any]] = field(default_factory=list)
     accepted: int = 0  # additions before the first trade-off
-    #: losses on a run with assumed firmware timing that another documented timing does not show
-    unproven: list[dict[str, Any]] = field(default_factory=list)
+    #: runs whose firmware timing is not documented: per stage, (the sketch whose timing scores it, NRMSE)
+    timing: dict[str, dict[str, tuple[str, float]]] = field(default_factory=dict)
 
     @property
     def additions(self) -> list[str]:
@@ -50,16 +53,14 @@ class HeldOutRuns:
             better = ", ".join(f"{r} {100 * a:.2f} % -> {100 * b:.2f} %" for r, (a, b) in t["better"].items())
             lines.append(f"trade-off: {t['addition']} makes {worse} worse"
                          + (f" (while {better} improve)" if better else ""))
-        for u in self.unproven:
-            alts = ", ".join(f"{100 * a:.2f} % -> {100 * b:.2f} % with the timing of {s}"
-                             for s, (a, b) in u["alternatives"].items() if a is not None and b is not None)
-            lines.append(f"not counted: {u['addition']} makes {u['run']} worse with its assumed firmware timing "
-                         f"({100 * u['assumed'][0]:.2f} % -> {100 * u['assumed'][1]:.2f} %), not {alts}: "
-                         f"the run's timing is not documented, so the loss is reported, not counted")
+        for run, chosen in self.timing.items():
+            lines.append(f"firmware timing of {run} not documented: each stage scored with the timing that "
+                         "predicts it better: " + ", ".join(f"{label} {100 * v:.2f} % ({sketch})"
+                                                             for label, (sketch, v) in chosen.items()))
         if not self.tradeoffs:
             lines.append(f"no addition makes any run's held-out error worse than the declared model's "
                          f"(beyond {100 * TOLERANCE:.0f} % and its noise"
-                         + (", under every firmware timing the run may have had)" if self.unproven else ")"))
+                         + ("; a run of undocumented timing at each stage's better timing)" if self.timing else ")"))
         else:
             kept = ", ".join(self.additions[:self.accepted]) or "nothing"
             lines.append(f"accepted on held-out runs: {kept} (trade-offs are reported, not added to the written model)")
@@ -67,7 +68,9 @@ class HeldOutRuns:
 
     def to_json(self) -> dict[str, Any]:
         return {"stages": self.stages, "tolerance": TOLERANCE, "tradeoffs": self.tradeoffs,
-                "accepted": self.additions[:self.accepted], "unproven": self.unproven,
+                "accepted": self.additions[:self.accepted],
+                "timing_profiled": {run: {label: {"sketch": sk, "nrmse": v} for label, (sk, v) in c.items()}
+                                    for run, c in self.timing.items()},
                 "runs": [{"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse,
                           **({"nrmse_with_other_timing": e.alternatives} if e.alternatives else {})}
                          for e in self.errors]}
@@ -102,54 +105,46 @@ def heldout_runs(diag: Any, obs: Any, *, progress: Callable[[str], None] | None 
     models = stage_models(diag)
     errors = leave_one_run_out(models, obs, baselines=True, progress=progress)
     labels = list(models)
-    trade, accepted, unproven = find_tradeoffs(labels, errors)
-    return HeldOutRuns(labels, errors, trade, accepted, unproven)
+    trade, accepted, timing = find_tradeoffs(labels, errors)
+    return HeldOutRuns(labels, errors, trade, accepted, timing)
 
 
-def find_tradeoffs(labels: list[str], errors: list[RunError]) -> tuple[list[dict[str, Any]], int, list[dict[str, Any]]]:
+def find_tradeoffs(labels: list[str], errors: list[RunError]
+                   ) -> tuple[list[dict[str, Any]], int, dict[str, dict[str, tuple[str, float]]]]:
     """The trade-offs among the stages `labels` (declared first), how many additions come before
-    the first, and the losses not counted: a run whose firmware timing is assumed vetoes an
-    addition only if it is worse under every documented timing it may have had (a loss under
-    the assumed one alone rests on the assumption, and is reported, not counted)."""
-    trade, unproven = [], []
+    the first, and, per run of undocumented firmware timing, the timing each stage is scored
+    with (RunError.profiled: the documented timing that predicts it better)."""
+    trade = []
     accepted = len(labels) - 1
+    timing = {e.run: {label: (sketch, v) for label in labels
+                      for v, sketch, _ in [e.profiled(label)] if v is not None}
+              for e in errors if e.alternatives}
     for k, cur in enumerate(labels[1:]):
         addition = cur.lstrip("+ ").split(" + ")[-1]
         worse, better = {}, {}
         for e in errors:
-            a, b = e.nrmse.get(labels[0]), e.nrmse.get(cur)
+            (a, _, sa), (b, _, sb) = e.profiled(labels[0]), e.profiled(cur)
             if a is None or b is None:
                 continue
-            if _worse(a, b, e.series, labels[0], cur):
-                others = {s: (alt.get(labels[0]), alt.get(cur)) for s, alt in e.alternatives.items()}
-                if all(x is not None and y is not None and _worse(x, y, e.alt_series.get(s, {}), labels[0], cur)
-                       for s, (x, y) in others.items()):
-                    worse[e.run] = (a, b)
-                else:
-                    unproven.append({"addition": addition, "run": e.run, "assumed": (a, b),
-                                     "alternatives": others})
+            if b > (1 + TOLERANCE) * a and _beyond_noise(sa, sb):
+                worse[e.run] = (a, b)
             elif b < (1 - TOLERANCE) * a:
                 better[e.run] = (a, b)
         if worse:
             trade.append({"addition": addition, "worse": worse, "better": better})
             accepted = min(accepted, k)
-    return trade, accepted, unproven
+    return trade, accepted, timing
 
 
-def _worse(a: float, b: float, series: dict[str, Any], base: str, cur: str) -> bool:
-    """From NRMSE a to b: worse by more than TOLERANCE and beyond the run's noise."""
-    return b > (1 + TOLERANCE) * a and _beyond_noise(series, base, cur)
-
-
-def _beyond_noise(series: dict[str, Any], base: str, cur: str) -> bool:
-    """Is a run's loss from `base` to `cur` beyond its noise? For a trace (its `series`): more
-    than 2 block-bootstrap standard errors (analysis/heldout_noise.py); without (a sweep): yes."""
+def _beyond_noise(base: tuple[np.ndarray, np.ndarray] | None, cur: tuple[np.ndarray, np.ndarray] | None) -> bool:
+    """Is a run's loss from the `base` (measured, predicted) series to `cur`'s beyond its noise?
+    For a trace: more than 2 block-bootstrap standard errors (analysis/heldout_noise.py);
+    without series (a sweep) or with series that do not pair: yes."""
     from omnibench.analysis.heldout_noise import worse_beyond_noise
 
-    if base not in series or cur not in series:
+    if base is None or cur is None or base[0].shape != cur[0].shape:
         return True
-    m, pa = series[base]
-    return worse_beyond_noise(m, pa, series[cur][1])
+    return worse_beyond_noise(base[0], base[1], cur[1])
 
 
 def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
