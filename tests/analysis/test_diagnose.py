@@ -172,3 +172,34 @@ def test_heldout_veto_uses_each_procedures_noise():
     assert _worse(energy(0.010), energy(0.020))
     assert not _worse(sweep(0.010), sweep(0.0104))
     assert _worse(sweep(0.010), sweep(0.012))
+
+
+def test_a_core_re_estimate_does_not_stand_in_for_a_pair_that_explains_more():
+    """A core re-estimate needs no adequacy. When it leads a round in which no library effect is
+    adequate alone, a pair that earns its place in all else and beats it by more than AMBIGUOUS
+    AIC comes first; a pair within AMBIGUOUS does not; an adequate library effect or a leading
+    effect that leaves its structure changes nothing (no pair is even fitted)."""
+    from omnibench.analysis.diagnosis.core import AMBIGUOUS, Candidate, _first_choice
+
+    def cand(name: str, aic: float, adequate: bool) -> Candidate:
+        return Candidate(name, 1, 0.0, fitted=True, aic_drop=aic, remaining=[] if adequate else ["structure"])
+
+    def never() -> list:
+        raise AssertionError("no pair should be fitted")
+
+    inertia, lag, latency = cand("I_w", 20650, True), cand("actuator_lag", 9000, False), cand("per_wheel_latency", 8000, False)
+    pair = [cand("actuator_lag", 30577, False), cand("per_wheel_latency", 30577, False)]
+    assert _first_choice([inertia, lag, latency], [lag, latency], lambda: pair) is pair
+    close = [cand("actuator_lag", 20650 + AMBIGUOUS / 2, False), cand("per_wheel_latency", 0, False)]
+    assert _first_choice([inertia, lag, latency], [lag, latency], lambda: close) == [inertia]
+    assert _first_choice([inertia, lag, latency], [lag, latency], lambda: []) == [inertia]
+    adequate_effect = cand("command_latency", 7000, True)
+    assert _first_choice([inertia, adequate_effect, lag], [adequate_effect, lag], never) == [inertia]
+    assert _first_choice([inertia, lag], [lag], never) == [inertia]  # one lead: no pair to compete
+    assert _first_choice([lag, inertia], [lag, latency], never) == []  # the leader leaves structure: pairs next
+    assert _first_choice([adequate_effect, lag], [lag], never) == [adequate_effect]
+    # the same when the re-estimate is reached after the leader (inadequate) and the pairs failed
+    from omnibench.analysis.diagnosis.core import _instead_of_core
+
+    assert _instead_of_core(inertia, [lag, inertia, latency], [lag, latency], lambda: pair) is pair
+    assert _instead_of_core(adequate_effect, [lag, adequate_effect], [lag, latency], never) == [adequate_effect]

@@ -22,8 +22,11 @@ Algorithm (docs/diagnose.md has the long form):
    Adequacy: it is added only if the structure it acts on is gone with it (no longer
    significant by the same tests). When the best is not adequate, pairs led by the best significant
    candidates are refitted together; a pair is added when it earns its place, removes the
-   structure, and each effect is significant given the other. Otherwise the structure stays
-   "unexplained". Among adequate candidates the lowest AIC wins; others within AMBIGUOUS of it
+   structure, and each effect is significant given the other. A core-parameter re-estimate
+   needs no adequacy, so when it leads and no library effect is adequate alone, a pair that
+   earns its place in all else and beats it by more than AMBIGUOUS AIC is added instead, with
+   the same exemption (else a re-estimate could stand in for two mechanisms that explain
+   more). Otherwise the structure stays "unexplained". Among adequate candidates the lowest AIC wins; others within AMBIGUOUS of it
    are reported as not separable with these data, with the experiment that would separate them.
 5. Add the winner, polish the fit and check the bounds again, repeat until nothing earns its
    place (or `max_effects`). "Added" reports the final model's values.
@@ -374,22 +377,35 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         # biases every later test; what it leaves is reported, and sought in the next round)
         adequate = [c for c in passing if not c.remaining or core_params.is_core(c.name)]
         added: list[Candidate] = []
-        if adequate and adequate[0] is passing[0]:
-            added = _polished(adequate[:1], problem, say, rnd, veto)
+        # two effects at once, led by a significant one (no significant single, no pair: what one
+        # effect cannot show, two are not tried for; pair fits are the costly part)
+        leads = [c for c in tried if c.fitted and c.aic_drop > 0 and c.p < alpha / m
+                 and not core_params.is_core(c.name)]
+        pairs: list[tuple[list[Candidate], list[Candidate]]] = []  # fitted once, when first needed
+
+        def best_pair(adequate_only: bool = True) -> list[Candidate]:
+            if not pairs:
+                pairs.append(_best_pairs(problem, current, leads, pool, evaluate, alpha, m, say, rnd)
+                             if leads else ([], []))
+            pair = pairs[0][0 if adequate_only else 1]
+            return [] if pair and pair[0].reason else pair  # a pair refused after its final fit: once
+
+        def pair_despite_structure() -> list[Candidate]:
+            return best_pair(adequate_only=False)
+
+        first = _first_choice(passing, leads, pair_despite_structure)
+        if first:
+            added = _polished(first, problem, say, rnd, veto)
         if not added:
-            # no single candidate both earns its place and removes the structure it acts on:
-            # two effects at once, led by a significant one (no significant single, no pair:
-            # what one effect cannot show, two are not tried for; pair fits are the costly part)
-            leads = [c for c in tried if c.fitted and c.aic_drop > 0 and c.p < alpha / m
-                     and not core_params.is_core(c.name)]
-            pair = _best_pair(problem, current, leads, pool, evaluate, alpha, m, say, rnd) if leads else []
+            # no single candidate both earns its place and removes the structure it acts on
+            pair = best_pair()
             if pair:
                 added = _polished(pair, problem, say, rnd, veto)
         for c in adequate:
             if added:
                 break
             if not c.reason:  # not already refused after its final fit
-                added = _polished([c], problem, say, rnd, veto)
+                added = _polished(_instead_of_core(c, passing, leads, pair_despite_structure), problem, say, rnd, veto)
         for c in passing:
             if c.remaining and not any(c is a for a in added) and not core_params.is_core(c.name):
                 c.reason = ("does not remove the structure it acts on: still " + "; ".join(
@@ -581,14 +597,41 @@ def _polished(cands: list[Candidate], problem: engine.Problem, say: Callable[[st
     return cands
 
 
-def _best_pair(problem: engine.Problem, current: engine.ModelFit, fitted: list[Candidate], pool: Sequence[Effect],
-               evaluate: Callable, alpha: float, m: int, say: Callable[[str], None], rnd: int) -> list[Candidate]:
+def _first_choice(passing: Sequence[Candidate], leads: Sequence[Candidate],
+                  pair_despite_structure: Callable[[], list[Candidate]]) -> list[Candidate]:
+    """What a round tries to add first: the best passing candidate (by AIC) if it is adequate,
+    else nothing (pairs are tried next); a core re-estimate as `_instead_of_core` says."""
+    if not passing or (passing[0].remaining and not core_params.is_core(passing[0].name)):
+        return []
+    return _instead_of_core(passing[0], passing, leads, pair_despite_structure)
+
+
+def _instead_of_core(c: Candidate, passing: Sequence[Candidate], leads: Sequence[Candidate],
+                     pair_despite_structure: Callable[[], list[Candidate]]) -> list[Candidate]:
+    """[c], or the pair that comes before it. A core re-estimate needs no adequacy, so it could
+    stand in for two mechanisms that explain more: when no library effect is adequate alone, a
+    pair that earns its place in all else (`pair_despite_structure`) and beats the re-estimate by
+    more than AMBIGUOUS AIC is added instead, with the same exemption (what it leaves is
+    reported, and sought in the next round)."""
+    if (core_params.is_core(c.name) and len(leads) > 1
+            and all(x.remaining for x in passing if not core_params.is_core(x.name))):
+        pair = pair_despite_structure()
+        if pair and pair[0].aic_drop > c.aic_drop + AMBIGUOUS:
+            return pair
+    return [c]
+
+
+def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[Candidate], pool: Sequence[Effect],
+                evaluate: Callable, alpha: float, m: int, say: Callable[[str], None], rnd: int
+                ) -> tuple[list[Candidate], list[Candidate]]:
     """Two effects at once, when no single one is adequate. Each of the PAIR_LEADS best fitted
     candidates is taken as a provisional model, the others are screened against what it leaves,
     and it is refitted together with the PAIR_TOP most promising of them. A pair is added when it
     earns its place, removes the structure it acts on, and each effect is significant given the
-    other. Returns the two candidates (sharing the pair's fit), or []."""
+    other. Returns the best such pair (its two candidates, sharing the pair's fit, or []) and the
+    best that passes all but the structure (what competes with a core re-estimate)."""
     best: tuple[float, list[Candidate]] | None = None
+    best_any: tuple[float, list[Candidate]] | None = None
     done: set[frozenset] = set()
     for lead in sorted(fitted, key=lambda c: -c.aic_drop)[:PAIR_LEADS]:
         others = [e for e in pool if e.name != lead.name]
@@ -610,7 +653,9 @@ def _best_pair(problem: engine.Problem, current: engine.ModelFit, fitted: list[C
             except (np.linalg.LinAlgError, ValueError):
                 continue
             pc = Candidate(f"{lead.name}+{e2.name}", rnd, float("nan"))
-            if not evaluate(pc, [e1, e2], cf, alpha / m) or pc.remaining:
+            if not evaluate(pc, [e1, e2], cf, alpha / m):
+                say(f"round {rnd}: the pair {lead.name} + {e2.name} does not earn its place "
+                    f"(AIC drop {pc.aic_drop:.1f}): {pc.reason}")
                 continue
             # the second must matter given the first, and the first given the second
             if lead.fit.deviance - cf.deviance < _lr_threshold(alpha / m, e2.n_params):
@@ -621,7 +666,12 @@ def _best_pair(problem: engine.Problem, current: engine.ModelFit, fitted: list[C
                 alone = None
             if alone is not None and alone.deviance - cf.deviance < _lr_threshold(alpha / m, e1.n_params):
                 continue
-            if best is None or pc.aic_drop > best[0]:
+            if pc.remaining:
+                say(f"round {rnd}: the pair {lead.name} + {e2.name} (AIC drop {pc.aic_drop:.1f}) leaves the "
+                    "structure it acts on")
+            improves_any = best_any is None or pc.aic_drop > best_any[0]
+            improves_adequate = not pc.remaining and (best is None or pc.aic_drop > best[0])
+            if improves_any or improves_adequate:
                 pair = []
                 for name, form, margin, partner in ((lead.name, lead.form, lead.form_margin, e2.name),
                                                     (e2.name, "", {}, lead.name)):
@@ -633,8 +683,11 @@ def _best_pair(problem: engine.Problem, current: engine.ModelFit, fitted: list[C
                                   partner=partner)
                     n.se = {k: pc.se[k] for k in n.values}
                     pair.append(n)
-                best = (pc.aic_drop, pair)
-    return best[1] if best else []
+                if improves_any:
+                    best_any = (pc.aic_drop, pair)
+                if improves_adequate:
+                    best = (pc.aic_drop, pair)
+    return (best[1] if best else []), (best_any[1] if best_any else [])
 
 
 def _lr_threshold(p: float, q: int) -> float:
