@@ -100,3 +100,27 @@ def test_a_latency_fit_steps_over_the_simulators_crossing_jumps(omnibot):
     tau, se = fit.values["command_latency.tau"], fit.se["command_latency.tau"]
     assert abs(tau - 0.02) < 3 * se
     assert se < 2e-4  # and still a measurement: 0.2 ms on a 20 ms latency
+
+
+def test_the_transient_test_does_not_count_a_shared_rounding_error_as_structure(omnibot):
+    """With the right latency fitted, the first interval after every duty change of one sign
+    starts at the same angle, so its rounding error repeats (~0.16 rad/s, seed 1002): counted as
+    independent samples that is a 'latency structure' at p ~ 1e-5 that refused the right
+    effect. Widened by the shared rounding, nothing significant is left."""
+    from omnibench.analysis.diagnosis import engine, structure, transient
+    from omnibench.analysis.diagnosis.campaign import REVEALING, campaign
+    from omnibench.effects import EFFECTS
+
+    eff = EFFECTS["command_latency"]
+    obs = campaign(omnibot, REVEALING["command_latency"], eff.world(), seed=1002, generator="independent")
+    problem = engine.Problem(obs, obs.procedures())
+    fit = engine.fit_model(problem, engine._robot_with_effect(omnibot, eff, {"tau": 0.02}), ["command_latency.tau"],
+                           max_nfev=10, passes=2)
+    r = fit.residual(problem)
+    w = fit.weights(problem)
+    args = (problem.table, r, r * w, problem.used, problem.group)
+    naive = transient.findings(*args)
+    honest = transient.findings(*args, problem=problem, f=fit.f, w=w)
+    n_tests = 20  # about as many as diagnose runs on a step-response campaign
+    assert structure.significant(naive, n_tests)
+    assert not structure.significant(honest, n_tests)

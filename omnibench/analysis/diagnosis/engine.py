@@ -253,6 +253,8 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     else:
         J = np.zeros((len(problem), 0))
     w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
+    if free:  # standard errors from each group's scale with the degrees of freedom the fit used
+        w = w / _dof_factor(problem, J, w, f0, s)
     Jw = (J * w[:, None])[used]
     se = {p: float("nan") for p in free}
     if free:  # cluster-robust over the CV groups: step-response residuals correlate in time;
@@ -266,6 +268,32 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
             se[p] = float(v)
     return ModelFit(robot=fitted, free=free, values={p: param_value(fitted, p) for p in free}, se=se, f=f0,
                     scale=s, deviance=problem.deviance(f0), J=J, nfev=nfev, converged=converged)
+
+
+def _dof_factor(problem: Problem, J: np.ndarray, w: np.ndarray, f: np.ndarray, s: Mapping[str, float]) -> np.ndarray:
+    """Per entry: the group's scale with its degrees of freedom over the profiled one (>= 1).
+
+    The profiled scale s_g^2 = RSS_g / n_g is the maximum-likelihood value, biased low by the
+    parameters the group's own entries pin down: three energy runs that fix I_q leave two
+    degrees of freedom, not three. For the standard errors the group's scale is
+    sqrt(RSS_g / (n_g - H_g)), H_g the sum of the group's leverages in the weighted fit (the
+    textbook unbiased estimate when one group holds all the data), never below its floor."""
+    used = problem.used
+    Jw = (J * w[:, None])[used]
+    h = np.zeros(len(problem))
+    if Jw.shape[1]:
+        Q, _ = np.linalg.qr(Jw)
+        h[used] = np.sum(Q ** 2, axis=1)
+    out = np.ones(len(problem))
+    rss = problem.rss(f)
+    for g, (r, n) in rss.items():
+        m = used & (problem.group == g)
+        H = float(h[m].sum())
+        if n - H < 1.0:
+            continue
+        s_dof = max(math.sqrt(r / (n - H)), problem.floor.get(g, 1e-12), 1e-12)
+        out[m] = max(s_dof / s.get(g, 1.0), 1.0)
+    return out
 
 
 @dataclass
