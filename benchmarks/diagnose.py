@@ -77,16 +77,18 @@ def _one(job: tuple) -> dict:
     d = diagnose(robot, campaign(robot, spec, world, seed=seed, generator=generator))
     names = [c.name for c in d.selected]
     covered = None
+    fitted = {}
     if kind == "effect" and names and names[0] == expected[0]:
         c = d.selected[0]
         checked = [k for k in truth if k in c.values]
         covered = all(abs(c.values[k] - truth[k]) <= 3 * c.se[k] for k in checked) if checked else None
+        fitted = {k: {"value": c.values[k], "se": c.se[k], "truth": truth.get(k)} for k in c.values}
     ratios = []
     for name in expected:
         if name in EFFECTS:
             ratios += [d.after[TABLE_OF[p]]["nrmse"] / d.before[TABLE_OF[p]]["nrmse"]
                        for p in EFFECTS[name].procedures if TABLE_OF[p] in d.before]
-    return {"kind": kind, "label": label, "selected": names, "covered": covered, "ratios": ratios,
+    return {"kind": kind, "label": label, "selected": names, "covered": covered, "fitted": fitted, "ratios": ratios,
             "unexplained": len(d.unexplained), "seconds": time.time() - t0}
 
 

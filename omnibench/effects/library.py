@@ -30,6 +30,10 @@ class Effect:
     #: forms the effect takes in real hardware: form name -> held parameter values; diagnosis
     #: fits each and reports which the data chose and by how much (the first is the default)
     forms: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    #: simpler candidates this one contains as a special case (serial_command_latency with
+    #: tau_packet = 0 is command_latency): diagnosis prefers them unless the extra parameters
+    #: are significant given them (a likelihood-ratio test, not an AIC drop of 2 per parameter)
+    nests: tuple[str, ...] = ()
 
     def with_form(self, form: str) -> "Effect":
         """This effect with `form`'s parameters held (unchanged for '' or an effect without forms)."""

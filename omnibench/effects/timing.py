@@ -209,7 +209,8 @@ def library_effects() -> dict:
                           "along the send order"}),
         Effect("serial_command_latency", fit=("tau", "tau_packet"),
                example={"tau": 0.01, "tau_packet": PACKET_9600}, start={"tau": 0.005, "tau_packet": 0.002},
-               procedures=("step_response",), variable="time since duty change", separates=order),
+               procedures=("step_response",), variable="time since duty change", separates=order,
+               nests=("command_latency",)),
         Effect("actuator_lag", fit=("tau_a",), example={"tau_a": 0.03}, start={"tau_a": 0.005},
                procedures=("step_response",), variable="time since duty change",
                separates={"command_latency": "look at the first sample after a change: a latency moves "
@@ -219,5 +220,6 @@ def library_effects() -> dict:
                example={"tau_1": 0.015, "tau_2": 0.004, "tau_3": 0.010, "tau_4": 0.002},
                start={f"tau_{j}": 0.005 for j in range(1, 5)},
                procedures=("step_response",), variable="time since duty change",
-               separates={"serial_command_latency": order["per_wheel_latency"]}),
+               separates={"serial_command_latency": order["per_wheel_latency"]},
+               nests=("command_latency", "serial_command_latency")),
     )}

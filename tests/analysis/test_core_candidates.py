@@ -30,3 +30,21 @@ def test_per_wheel_latency_reports_the_order_the_wheels_are_served(omnibot):
     note = d.to_json()["selected"][0]["note"]
     assert note.startswith("wheel order: RR") and note.index("FR") < note.index("RL") < note.index("FL")
     assert "wheel order: RR" in d.text()
+
+
+def test_a_latency_with_an_insignificant_extra_parameter_gives_way_to_the_one_it_contains():
+    """serial_command_latency with tau_packet = 0 is command_latency: it leads only when its
+    packet delay is significant given the simpler one, not on an AIC drop of 2."""
+    from types import SimpleNamespace
+
+    from omnibench.analysis.diagnosis.core import Candidate, _prefer_nested
+
+    def cand(name, q, deviance, aic):
+        return Candidate(name, 1, 0.0, fitted=True, q=q, aic_drop=aic, fit=SimpleNamespace(deviance=deviance))
+
+    serial, single = cand("serial_command_latency", 2, -100.0, 4838.3), cand("command_latency", 1, -96.3, 4836.5)
+    assert [c.name for c in _prefer_nested([serial, single], 1e-3 / 16)] == ["command_latency", "serial_command_latency"]
+    serial.fit.deviance = -130.0  # a packet delay the data insist on (LR 33.7 for 1)
+    assert [c.name for c in _prefer_nested([serial, single], 1e-3 / 16)] == ["serial_command_latency", "command_latency"]
+    per_wheel = cand("per_wheel_latency", 4, -101.0, 4835.0)  # contains both: the chain ends at the simplest
+    assert _prefer_nested([per_wheel, single], 1e-3 / 16)[0].name == "command_latency"

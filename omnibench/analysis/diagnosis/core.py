@@ -233,7 +233,8 @@ def _structure_of(problem: engine.Problem, fit: engine.ModelFit) -> tuple[list[s
     r = fit.residual(problem)
     z = r * fit.weights(problem)
     found, n = structure.analyse(problem.table, r, z, problem.used, problem.group, predicted=fit.f)
-    extra = transient.findings(problem.table, r, z, problem.used, problem.group)  # command timing's signature
+    extra = transient.findings(problem.table, r, z, problem.used, problem.group,  # command timing's signature
+                               problem=problem, f=fit.f, w=fit.weights(problem))
     return found + extra, n + len(extra)
 
 
@@ -372,6 +373,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         passing += core_pass
         tried += core_tried
         passing.sort(key=lambda c: -c.aic_drop)
+        passing = _prefer_nested(passing, alpha / m)
         # a core parameter (core_params.py) is a correction of the declared model, not a new
         # mechanism standing in for another: it needs no adequacy (a wrong declared value left in
         # biases every later test; what it leaves is reported, and sought in the next round)
@@ -419,7 +421,10 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             if any(c is a for a in added):
                 continue
             diff = best.aic_drop - c.aic_drop
-            if diff < AMBIGUOUS and not c.remaining:
+            if best.name in getattr(_spec(c.name), "nests", ()) and not c.remaining:
+                c.reason = (f"contains {best.name} as a special case, and its extra parameters are not "
+                            f"significant given it (LR = {c.lr - best.lr:.1f} for {c.q - best.q})")
+            elif diff < AMBIGUOUS and not c.remaining:
                 ambiguous.append({"chosen": best.name, "alternative": c.name, "aic_difference": float(diff),
                                   "experiment": separating_experiment(_spec(best.name), _spec(c.name))})
                 c.reason = f"fits almost as well as {best.name} (AIC difference {diff:.1f}): not separable with these data"
@@ -454,6 +459,24 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                      rejected=rejected, ambiguous=ambiguous, unexplained=final_sig, base_structure=base_sig,
                      before=engine.error_table(problem, base_ho), after=engine.error_table(problem, final_ho),
                      problem=problem, base_heldout=base_ho, final_heldout=final_ho, notes=notes, exposed_by=exposed)
+
+
+def _prefer_nested(passing: list[Candidate], p_needed: float) -> list[Candidate]:
+    """`passing` (best AIC first) with a simpler candidate moved ahead of one that contains it as
+    a special case (Effect.nests) when the containing one's extra parameters are not significant
+    given it (LR test at p_needed): AIC alone takes any parameter that buys a deviance drop of 2."""
+    out = list(passing)
+    for _ in range(len(out)):
+        top = out[0] if out else None
+        if top is None or core_params.is_core(top.name) or top.fit is None:
+            break
+        simpler = [c for c in out[1:] if c.name in EFFECTS[top.name].nests and not c.remaining and c.fit is not None
+                   and c.fit.deviance - top.fit.deviance < _lr_threshold(p_needed, max(top.q - c.q, 1))]
+        if not simpler:
+            break
+        out.remove(simpler[0])
+        out.insert(0, simpler[0])
+    return out
 
 
 def _at_bound(effect: Effect, values: Mapping[str, float]) -> str:

@@ -41,11 +41,21 @@ from scipy import optimize, stats
 
 from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
 from omnibench.analysis.observations import Observations
+from omnibench.analysis.diagnosis.encoder_se import encoder_se
 from omnibench.analysis.diagnosis.robust_se import cluster_se
-from omnibench.analysis.predictor import Predictor
+from omnibench.analysis.predictor import PHYSICS_DT, Predictor
 from omnibench.effects.library import Effect
 
 FD_STEP = 1e-4  # forward-difference step, in units of each parameter's scale
+# Command latencies shift the duty schedule in time. The simulator integrates on a fixed
+# physics step, and where a wheel's speed crosses zero inside a step (every reversal) its
+# trajectory carries an error that depends on where in the step the crossing falls: the
+# prediction jumps each time a crossing moves to the next step (up to ~20 in the deviance
+# on a 4 s square wave), and a difference over a few microseconds sees those jumps as
+# slopes, so the fit stops on one of them (command_latency 19.55 ms +- 7 us for 20 ms).
+# Shifting a latency by exactly one physics step shifts the whole discretised trajectory by
+# one step, jumps included: the difference over one step is the smooth sensitivity.
+SHIFT_TERMS = ("command_latency", "serial_command_latency", "per_wheel_latency")
 CV_FOLDS = 5
 MIN_SCALE_KNOWN = 0.5  # floor of s_g for groups with stated standard errors
 MIN_SCALE_UNKNOWN = 1e-3  # floor of s_g / RMS(measured) for groups without
@@ -178,6 +188,13 @@ def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] |
     return robot.replace(effects=effects)
 
 
+def fd_steps(free: Sequence[str], scl: np.ndarray) -> np.ndarray:
+    """Forward-difference step of each free parameter in units of its scale: FD_STEP, and one
+    physics step for a latency (SHIFT_TERMS)."""
+    return np.array([PHYSICS_DT / s if p.split(".")[0] in SHIFT_TERMS and s > 0 else FD_STEP
+                     for p, s in zip(free, scl)])
+
+
 def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: int = 20, passes: int = 3,
               scale: Mapping[str, float] | None = None) -> ModelFit:
     """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param).
@@ -189,6 +206,7 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     hi = np.array([param_bounds(robot, p)[1] for p in free]) / scl
     x = np.clip(np.array([param_value(robot, p) for p in free]) / scl, lo, hi)
     used = problem.used
+    steps = fd_steps(free, scl)
 
     def at(xv: np.ndarray) -> Any:
         return with_params(robot, {p: float(v) for p, v in zip(free, xv * scl)})
@@ -208,10 +226,10 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
             return ((problem.y - cache[key]) * w)[used]
 
         def jac(xv: np.ndarray) -> np.ndarray:
-            xs = [xv] + [xv + FD_STEP * np.eye(len(xv))[j] for j in range(len(xv))]
+            xs = [xv] + [xv + steps[j] * np.eye(len(xv))[j] for j in range(len(xv))]
             F = problem.predict([at(v) for v in xs])
             cache[xv.tobytes()] = F[0]
-            return -((F[1:] - F[0]) / FD_STEP * w).T[used]
+            return -((F[1:] - F[0]) / steps[:, None] * w).T[used]
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
@@ -228,21 +246,54 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
-        xs = [x] + [x + FD_STEP * np.eye(len(x))[j] for j in range(len(x))]
+        xs = [x] + [x + steps[j] * np.eye(len(x))[j] for j in range(len(x))]
         F = problem.predict([at(v) for v in xs])
         f0 = F[0]
-        J = ((F[1:] - F[0]) / FD_STEP).T / scl
+        J = ((F[1:] - F[0]) / steps[:, None]).T / scl
     else:
         J = np.zeros((len(problem), 0))
     w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
+    if free:  # standard errors from each group's scale with the degrees of freedom the fit used
+        w = w / _dof_factor(problem, J, w, f0, s)
     Jw = (J * w[:, None])[used]
     se = {p: float("nan") for p in free}
-    if free:  # cluster-robust over the CV groups: step-response residuals correlate in time
+    if free:  # cluster-robust over the CV groups: step-response residuals correlate in time;
+        # and never below what the encoder's rounding, revisited by a periodic motion, leaves
         rw = ((problem.y - f0) * w)[used]
-        for p, v in zip(free, cluster_se(Jw, rw, problem.table["cv_group"].to_numpy()[used])):
+        robust = cluster_se(Jw, rw, problem.table["cv_group"].to_numpy()[used])
+        rounding = encoder_se(problem, f0, Jw, w)
+        if rounding is not None:
+            robust = np.maximum(robust, rounding)
+        for p, v in zip(free, robust):
             se[p] = float(v)
     return ModelFit(robot=fitted, free=free, values={p: param_value(fitted, p) for p in free}, se=se, f=f0,
                     scale=s, deviance=problem.deviance(f0), J=J, nfev=nfev, converged=converged)
+
+
+def _dof_factor(problem: Problem, J: np.ndarray, w: np.ndarray, f: np.ndarray, s: Mapping[str, float]) -> np.ndarray:
+    """Per entry: the group's scale with its degrees of freedom over the profiled one (>= 1).
+
+    The profiled scale s_g^2 = RSS_g / n_g is the maximum-likelihood value, biased low by the
+    parameters the group's own entries pin down: three energy runs that fix I_q leave two
+    degrees of freedom, not three. For the standard errors the group's scale is
+    sqrt(RSS_g / (n_g - H_g)), H_g the sum of the group's leverages in the weighted fit (the
+    textbook unbiased estimate when one group holds all the data), never below its floor."""
+    used = problem.used
+    Jw = (J * w[:, None])[used]
+    h = np.zeros(len(problem))
+    if Jw.shape[1]:
+        Q, _ = np.linalg.qr(Jw)
+        h[used] = np.sum(Q ** 2, axis=1)
+    out = np.ones(len(problem))
+    rss = problem.rss(f)
+    for g, (r, n) in rss.items():
+        m = used & (problem.group == g)
+        H = float(h[m].sum())
+        if n - H < 1.0:
+            continue
+        s_dof = max(math.sqrt(r / (n - H)), problem.floor.get(g, 1e-12), 1e-12)
+        out[m] = max(s_dof / s.get(g, 1.0), 1.0)
+    return out
 
 
 @dataclass

@@ -8,6 +8,12 @@ duty changes are multiplied by the sign of that change, and the signed residual 
 cells of wheel x sample index (binned means, F test, as structure.py does): a latency shows as
 a signed residual in the first samples, growing by wheel when the wheels are served one after
 another.
+
+The samples of a cell are not independent: the first interval after every duty change of one
+sign starts at the same angle of the periodic orbit, so it carries the same encoder rounding
+error each time (encoder_se.py), ~0.1 rad/s at 20 ms sampling, which a mean over 15 reversals
+keeps. Given the run's encoder (`problem` and predictions `f`), each cell mean's variance is
+widened by the rounding covariance of its samples; without, the samples count as independent.
 """
 
 from __future__ import annotations
@@ -46,9 +52,32 @@ def change_signs(t) -> tuple[np.ndarray, np.ndarray]:
     return out, since
 
 
-def findings(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group: np.ndarray) -> list[Finding]:
+def _rounding_inflation(problem, f: np.ndarray, w: np.ndarray, m: np.ndarray, keys: np.ndarray,
+                        cells: np.ndarray, signs: np.ndarray) -> np.ndarray:
+    """Per cell: variance of its mean of signed z under the encoder-rounding covariance over that
+    of independent samples (>= 1; ones when the runs carry no encoder resolution)."""
+    from omnibench.analysis.diagnosis.encoder_se import meat
+
+    used = problem.used
+    rows = np.flatnonzero(m)
+    pos = np.full(len(used), -1)
+    pos[used] = np.arange(int(used.sum()))
+    A = np.zeros((int(used.sum()), len(cells)))
+    for c, cell in enumerate(cells):
+        sel = keys == cell
+        A[pos[rows[sel]], c] = signs[sel] / sel.sum()
+    M = meat(problem, f, A, w)
+    if M is None:
+        return np.ones(len(cells))
+    white = np.sum(A ** 2, axis=0)
+    return np.maximum(np.diag(M) / np.where(white > 0, white, 1.0), 1.0)
+
+
+def findings(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group: np.ndarray,
+             problem=None, f: np.ndarray | None = None, w: np.ndarray | None = None) -> list[Finding]:
     """One finding per step-response group: signed z of the first SAMPLES samples after each
-    duty change, binned by wheel x sample index."""
+    duty change, binned by wheel x sample index (cell means' variances widened by the encoder
+    rounding the samples share when `problem`, predictions `f` and weights `w` are given)."""
     if not (table["procedure"].to_numpy() == "step_response").any():
         return []
     sign, since = change_signs(table)
@@ -67,7 +96,9 @@ def findings(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group
         within = sum(float(np.sum((zs[keys == c] - mu) ** 2)) for c, mu in zip(cells, means))
         dof_w = max(int(counts.sum()) - len(cells), 1)
         s2 = max(within / dof_w, 1e-12)
-        zb = means / np.sqrt(s2 / counts)
+        infl = (_rounding_inflation(problem, f, w, m, keys, cells, sign[m]) if problem is not None and f is not None
+                and w is not None else np.ones(len(cells)))
+        zb = means / np.sqrt(s2 / counts * infl)
         T = float(np.sum(zb ** 2))
         p = float(stats.f.sf(T / len(cells), len(cells), dof_w))
         where = []
