@@ -105,6 +105,22 @@ def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[U
     return [Unit(u.candidate, keep[id(u)], u.rank) for u in units if id(u) in keep]
 
 
+def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapping[str, float],
+                tabs: Mapping[str, float], replan: Callable[[dict[str, tuple[float, bool]]], Any]
+                ) -> tuple[Any, Mapping[str, tuple[float, bool]]]:
+    """(The plan, the targets it aimed at): the plan again, each unmet target divided by k = fitted SE / the plan's SE of the same data,
+    when k > 1. The plan's SE of the data in hand is sqrt(diag (J^T J / s2_g)^-1); the fit's can be
+    larger (correlation inflation, a parameter it held fixed), and a plan that thinks a target met
+    that the fit does not would add nothing and end the campaign short of it."""
+    k = {p: se[p] / design.se_before[p] for p in targets
+         if p not in design.refused and math.isfinite(se.get(p, math.inf)) and se[p] > tabs[p]
+         and 0 < design.se_before.get(p, math.inf) < se[p]}
+    if not k:
+        return design, targets
+    aims = {p: ((v / k[p]) if p in k else v, rel) for p, (v, rel) in targets.items()}
+    return replan(aims), aims
+
+
 def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[str, tuple[float, bool]],
                      refused: Mapping[str, str], se: Mapping[str, float], space: Space, costs: Costs, *,
                      current: bool, start: World | None, floor: list[Any], have: set[str], obs: Any,
@@ -196,6 +212,9 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
         design = plan(robot, res, targets, space, costs, current=current, start=world,
                       budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
                       required=[c for c in floor if c.procedure not in have], obs=obs)
+        design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
+            robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
+            budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs))
         refused.update(design.refused)
         if not design.units:
             reason = "the plan adds nothing (targets refused or out of reach within the budget)"
@@ -206,7 +225,7 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
             # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
             block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
         else:
-            units, deferred = defer_unmeasured(design.units, robot, res, targets, refused, se, space, costs,
+            units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
                                                current=current, start=world, floor=floor, have=have, obs=obs,
                                                budget_seconds=budget_seconds - spent_s,
                                                budget_actions=budget_actions - n_acts)

@@ -97,3 +97,21 @@ def test_the_current_pose_buys_only_what_the_measured_targets_need():
         (u.candidate, u.reps) for u in design.units if u.candidate.procedure != "sweep"]
     # what runs now plus what is to come still meets a's target (at the plan's margin)
     assert _block_prediction(robot, res, obs, True, units)["a"] <= targets["a"][0] * res.values["a"]
+
+
+def test_a_target_the_plan_thinks_met_and_the_fit_does_not_is_aimed_lower():
+    """The plan's SE of the data in hand (information) can be below the fit's (its inflation): the
+    loop then re-plans with that target divided by their ratio, so the plan adds steps instead of
+    nothing; a target the fit meets, or the plan already sees unmet, is left as asked."""
+    from types import SimpleNamespace
+
+    from omnibench.bench.adaptive import _calibrated
+
+    design = SimpleNamespace(se_before={"a": 1.0, "b": 1.0, "c": 3.0}, refused={})
+    targets = {"a": (0.02, True), "b": (0.02, True), "c": (0.02, True)}
+    fitted = {"a": 2.0, "b": 0.5, "c": 2.0}  # a: unmet by the fit, met by the plan's information
+    replanned, aims = _calibrated(design, targets, fitted, {"a": 1.5, "b": 1.5, "c": 1.5}, lambda t: ("again", t))
+    assert aims == {"a": (0.01, True), "b": (0.02, True), "c": (0.02, True)} and replanned == ("again", aims)
+    same, aims = _calibrated(design, targets, {"a": 1.0, "b": 0.5, "c": 2.0}, {"a": 1.5, "b": 1.5, "c": 1.5},
+                             lambda t: ("again", t))
+    assert same is design and aims == targets
