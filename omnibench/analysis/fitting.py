@@ -285,9 +285,9 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
 
     Steady state upside down: tau_motor = (1 + c F_N)(a omega + b sign omega), with tau_motor =
     eta k_t i when the current was logged, else eta k_t (u V_batt - k_e omega) / R_a (V_batt the
-    logged supply of the step where there is one, else the robot's). Linear in
-    (a, b, a c, b c); returns a, b and c = (b c) / b (0 when a single load cannot separate it),
-    plus `n` rows used."""
+    logged supply of the step where there is one, else the robot's). Linear in (a, b) at a given
+    c, which is searched over its physical range; returns a, b, c (0 when a single load cannot
+    separate it) and `n` rows used."""
     df = sweep[np.abs(sweep["omega"]) > MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi]
     if len(df) < 2:
         return {"a": robot.a, "b": robot.b, "c": robot.c, "n": len(df)}
@@ -302,12 +302,27 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
         y = robot.eta * robot.k_t * (df["u"].to_numpy(float) * v - robot.k_e * w) / robot.R_a
     s = np.sign(w)
     multi = np.ptp(F) > 1e-6 * max(1.0, float(np.max(F)))
-    X = np.column_stack([w, s, F * w, F * s]) if multi else np.column_stack([w, s])
-    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    a, b = float(theta[0]), float(theta[1])
-    c = float(theta[3] / theta[1]) if multi and abs(theta[1]) > 0 else 0.0
-    if multi:  # with c known, a and b are the coefficients at zero load
-        pass
+    X = np.column_stack([w, s])
+    if not multi:
+        (a, b), *_ = np.linalg.lstsq(X, y, rcond=None)
+        return {"a": max(float(a), 0.0), "b": max(float(b), 0.0), "c": 0.0, "n": len(df)}
+
+    # Two loads or more: y = (1 + c F)(a w + b s) is linear in (a, b) for a given c (variable
+    # projection), so only c is searched. The four-column form (w, s, F w, F s) would need every
+    # load at two speeds or more: with a second load at one level only (the design's diagnostic
+    # floor) it is rank-deficient and its minimum-norm answer is far off (a 0, b 20 x too large).
+    def solve(c: float) -> tuple[float, np.ndarray]:
+        g = 1.0 + c * F
+        ab, *_ = np.linalg.lstsq(X * g[:, None], y, rcond=None)
+        r = y - (X * g[:, None]) @ ab
+        return float(r @ r), ab
+
+    grid = np.concatenate([[0.0], np.geomspace(1e-5, param_bounds(robot, "c")[1], 60)])
+    k = int(np.argmin([solve(c)[0] for c in grid]))
+    lo_c, hi_c = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    c = float(optimize.minimize_scalar(lambda x: solve(x)[0], bounds=(lo_c, hi_c), method="bounded",
+                                       options={"xatol": 1e-12 * max(hi_c, 1e-9)}).x) if hi_c > lo_c else lo_c
+    a, b = (float(v) for v in solve(c)[1])
     return {"a": max(a, 0.0), "b": max(b, 0.0), "c": max(c, 0.0), "n": len(df)}
 
 

@@ -105,6 +105,57 @@ def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[U
     return [Unit(u.candidate, keep[id(u)], u.rank) for u in units if id(u) in keep]
 
 
+def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapping[str, float],
+                tabs: Mapping[str, float], replan: Callable[[dict[str, tuple[float, bool]]], Any]
+                ) -> tuple[Any, Mapping[str, tuple[float, bool]]]:
+    """(The plan, the targets it aimed at): the plan again, each unmet target divided by k = fitted SE / the plan's SE of the same data,
+    when k > 1. The plan's SE of the data in hand is sqrt(diag (J^T J / s2_g)^-1); the fit's can be
+    larger (correlation inflation, a parameter it held fixed), and a plan that thinks a target met
+    that the fit does not would add nothing and end the campaign short of it."""
+    k = {p: se[p] / design.se_before[p] for p in targets
+         if p not in design.refused and math.isfinite(se.get(p, math.inf)) and se[p] > tabs[p]
+         and 0 < design.se_before.get(p, math.inf) < se[p]}
+    if not k:
+        return design, targets
+    aims = {p: ((v / k[p]) if p in k else v, rel) for p, (v, rel) in targets.items()}
+    return replan(aims), aims
+
+
+def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[str, tuple[float, bool]],
+                     refused: Mapping[str, str], se: Mapping[str, float], space: Space, costs: Costs, *,
+                     current: bool, start: World | None, floor: list[Any], have: set[str], obs: Any,
+                     budget_seconds: float, budget_actions: float) -> tuple[list[Unit], list[str]]:
+    """The plan's steps with the current pose's part bought only for the targets the data have
+    measured; (units, the targets deferred).
+
+    A target on a parameter the data have not estimated yet (the roller terms and C_r before any
+    ground run) is planned at the robot file's value and at sensitivities taken there: a guess
+    (a relative target at a value 2/3 of the truth asks for 2.25 x the information). What the
+    current pose buys cannot be taken back without a flip, while the later poses, which measure
+    those parameters, can still buy what they need once their value and noise are known. So the
+    current pose's steps are re-planned for the measured targets only, with the later poses'
+    planned steps counted as information to come (`plan(given=...)`)."""
+    if res is None or not units:
+        return units, []
+    pose = units[0].candidate.world.mode
+    later = [u for u in units if u.candidate.world.mode != pose]
+    live = [p for p in targets if p not in refused]
+    deferred = [p for p in live if not math.isfinite(se.get(p, math.inf))]
+    known = {p: targets[p] for p in live if p not in deferred}
+    if not later or not deferred or not known:
+        return units, []
+    given = [u.candidate for u in later for _ in range(u.reps)]
+    try:
+        now = plan(robot, res, known, space, costs, current=current, start=start, budget_seconds=budget_seconds,
+                   budget_actions=budget_actions,
+                   required=[c for c in floor if c.procedure not in have and c not in given],
+                   obs=obs, given=given)
+    except UserError:
+        return units, []
+    here = [u for u in now.units if u.candidate.world.mode == pose]
+    return here + later, deferred
+
+
 def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
     """The fit of all data so far, started from the previous round's values (None if it fails)."""
     from omnibench.analysis.fitting import fit
@@ -161,19 +212,29 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
         design = plan(robot, res, targets, space, costs, current=current, start=world,
                       budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
                       required=[c for c in floor if c.procedure not in have], obs=obs)
+        design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
+            robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
+            budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs))
         refused.update(design.refused)
         if not design.units:
             reason = "the plan adds nothing (targets refused or out of reach within the budget)"
             log("design_stop", {"round": r, "why": reason, "notes": design.notes})
             break
+        deferred: list[str] = []
         if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
             # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
             block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
         else:
-            block = pilot(first_block(design.units), have, floor)
+            units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
+                                               current=current, start=world, floor=floor, have=have, obs=obs,
+                                               budget_seconds=budget_seconds - spent_s,
+                                               budget_actions=budget_actions - n_acts)
+            block = pilot(first_block(units), have, floor)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
         block_design = _block_prediction(robot, res, obs, current, block)
-        rec = {"round": r, "why": "largest drop of the weighted A-criterion per second of cost",
+        rec = {"round": r, "why": "largest drop of the weighted A-criterion per second of cost"
+               + (f"; in this pose only what {', '.join(p for p in targets if p not in deferred and p not in refused)} "
+                  f"need (the later poses measure {', '.join(deferred)})" if deferred else ""),
                "fit_se": {p: _finite(v) for p, v in se.items()}, "targets": tabs,
                "plan": design.to_json(), "runs_now": [u.candidate.label + f" x{u.reps}" for u in block],
                "expected_se_after_block": {p: _finite(block_design.get(p, math.inf)) for p in targets},

@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import tomli_w
 
 from omnibench.analysis.design.planner import Unit
-from omnibench.analysis.design.space import FORWARD_DUTIES, SWEEP_DUTIES, Candidate, Limits, Space, build_space
+from omnibench.analysis.design.space import FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space, build_space
 from omnibench.bench.procedure import load_plan
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}
@@ -44,9 +44,12 @@ def space_from_files(robot: Any, files: Mapping[str, str | Path], limits: Limits
     limits = replace(limits, max_duty=min(limits.max_duty, top))
     sweep_duties = sorted({round(abs(s.params["duty"]), 6) for s in sweep.steps} | set(SWEEP_DUTIES))
     forward_duties = sorted({round(abs(s.params["duty"]), 6) for s in fwd.steps} | set(FORWARD_DUTIES))
+    top_v = max([float(s.params["speed"]) for s in lat.steps] or [max(LATERAL_SPEEDS)])
+    speeds = tuple(sorted({v for v in LATERAL_SPEEDS if v <= top_v + 1e-9}
+                          | {round(float(s.params["speed"]), 6) for s in lat.steps}))
     return build_space(robot, wheel_sets=wheel_sets, payloads=payloads, steady=sweep.settings["steady_state"],
                        limits=limits, durations=(d, 2 * d, 3 * d), settle=settle, sweep_duties=tuple(sweep_duties),
-                       forward_duties=tuple(forward_duties))
+                       forward_duties=tuple(forward_duties), speeds=speeds)
 
 
 def _read(path: str | Path) -> dict[str, Any]:

@@ -228,10 +228,12 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
          costs: Costs = Costs(), *, current: bool = True, start: World | None = None,
          budget_seconds: float = math.inf, budget_actions: float = math.inf, margin: float = MARGIN,
          required: Sequence[Candidate] = (), info: CandidateInformation | None = None,
-         max_units: int = 200, obs: Any = None) -> Design:
+         max_units: int = 200, obs: Any = None, given: Sequence[Candidate] = ()) -> Design:
     """The next steps for `targets` from the fit `res` of `obs` (None: the prior alone) on `robot`.
 
-    required: candidates always included (a diagnostic floor), unless the data already hold them."""
+    required: candidates always included (a diagnostic floor), unless the data already hold them.
+    given: steps that will run anyway (one entry per pair): their information counts as if in
+    hand, they are neither chosen nor priced (the adaptive campaign's later poses)."""
     model = res.robot if res is not None else robot
     names = planning_names(model, current)
     for p in targets:
@@ -250,6 +252,10 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     for p in names:  # parameters the fit has not estimated yet have no SE of their own
         if res is None or p not in res.cov.index:
             se_before[p] = math.inf
+    index = {c: k for k, c in enumerate(space.candidates)}
+    for c in given:
+        if c in index and info.usable[index[c]]:
+            M0 = M0 + info.info[index[c]]
     # ---- identifiability over the whole design space
     refused: dict[str, str] = {}
     conditional: dict[str, str] = {}

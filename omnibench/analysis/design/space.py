@@ -29,6 +29,8 @@ ACTION_WORDS = {"flip": "flip the robot", "wheels": "swap the wheel set", "paylo
 #: Candidate duty levels (besides the lab's own), capped by the limits.
 SWEEP_DUTIES = (0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 0.8, 0.95)
 FORWARD_DUTIES = (0.2, 0.3, 0.45, 0.6, 0.8)
+#: Candidate lateral speeds (m/s) besides the lab's own, up to the highest its file uses.
+LATERAL_SPEEDS = (0.2, 0.3, 0.45)
 
 
 @dataclass(frozen=True)
