@@ -368,7 +368,8 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
 def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
                   *, max_nfev: int = 15) -> ModelFit:
     """Refit the current model's parameters together with `effect`'s, starting from the screen's
-    estimate (clipped into the parameter bounds) or the effect's `start`."""
+    estimate (clipped into the parameter bounds) or the effect's `start`, and from each of the
+    effect's `restarts`: the fit of least deviance."""
     start = dict(effect.start)
     if estimate:
         for p, v in estimate.items():
@@ -376,9 +377,22 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                 effect.term.params[effect.term.param_names.index(p)].upper
             if math.isfinite(v) and lo <= v <= hi and v != 0.0:
                 start[p] = v
-    robot = _robot_with_effect(current.robot, effect, start)
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
-    return fit_model(problem, robot, free, max_nfev=max_nfev, passes=2, scale=current.scale)
+    best = None
+    for st in _restarts(effect, start):
+        robot = _robot_with_effect(current.robot, effect, st)
+        f = fit_model(problem, robot, free, max_nfev=max_nfev, passes=2, scale=current.scale)
+        if best is None or f.deviance < best.deviance:
+            best = f
+    return best
+
+
+def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, float]]:
+    """The start point, then one per alternative value of each `effect.restarts` parameter."""
+    out = [dict(start)]
+    for p, values in effect.restarts.items():
+        out += [{**start, p: float(v)} for v in values if v != start.get(p)]
+    return out
 
 
 def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect],
