@@ -99,7 +99,8 @@ _SWEEP = CampaignSpec(("sweep",))
 #: the fitted parameters that the library's form shares; {} when the forms share none).
 FORMS: dict[str, tuple[CampaignSpec, dict, dict]] = {
     "stribeck_friction:exponential decay": (
-        _SWEEP, {"stribeck_friction": {"b_s": 0.25, "w_s": 1.0, "c_s": 0.01, "shape": 1.0}}, {}),
+        _SWEEP, {"stribeck_friction": {"b_s": 0.25, "w_s": 1.0, "c_s": 0.01, "shape": 1.0}},
+        {"stribeck_friction.b_s": 0.25}),
     "stribeck_friction:w_s 0.5 rad/s": (
         _SWEEP, {"stribeck_friction": {"b_s": 0.25, "w_s": 0.5, "c_s": 0.01, "shape": 2.0}},
         {"stribeck_friction.b_s": 0.25}),
