@@ -24,6 +24,8 @@ clean: worlds with any addition.
     .venv/bin/python benchmarks/diagnose.py --seeds 2 --only stribeck_friction,pair:battery+stribeck
     .venv/bin/python benchmarks/diagnose.py --generator model --seeds 3 --json results.json
     .venv/bin/python benchmarks/diagnose.py --from-json results.json     # figures of an interrupted run
+    .venv/bin/python benchmarks/diagnose.py --seeds 5 --skip 5 --json more.json   # seeds 1005-1009
+    .venv/bin/python benchmarks/diagnose.py --from-json results.json,more.json
 
 Jobs run seed-major (every world's first seed, then every world's second, ...), and --json is
 rewritten after each diagnosis, so an interrupted run still gives every world the same seeds.
@@ -163,15 +165,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10, help="simulated campaigns per world (default 10)")
     ap.add_argument("--clean", type=int, default=20, help="clean worlds in all (default 20)")
+    ap.add_argument("--skip", type=int, default=0,
+                    help="leave out the first SKIP seeds of each world (continue an earlier run on new seeds)")
     ap.add_argument("--generator", default="independent", choices=("independent", "model"))
     ap.add_argument("--only", default="", help="comma-separated world labels (as printed) to run")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     ap.add_argument("--json", default="", help="also write the results to this JSON file")
-    ap.add_argument("--from-json", default="", help="only print the figures of a (possibly interrupted) run's JSON")
+    ap.add_argument("--from-json", default="",
+                    help="only print the figures of (possibly interrupted) runs' JSON files, comma-separated")
     args = ap.parse_args(argv)
     if args.from_json:
-        with open(args.from_json, encoding="utf-8") as fh:
-            runs = json.load(fh)["runs"]
+        runs = []
+        for path in args.from_json.split(","):
+            with open(path, encoding="utf-8") as fh:
+                runs += json.load(fh)["runs"]
         summarise(runs, args.generator, sum(r["seconds"] for r in runs))
         return 0
     worlds = _worlds(args.generator)
@@ -188,9 +195,10 @@ def main(argv: list[str] | None = None) -> int:
     for w in worlds:
         if w[0] == "clean":
             k = int(w[1].split()[-1])
-            seeds = [5000 + s for s in range(args.clean) if s % max(n_clean, 1) == k % max(n_clean, 1)]
+            seeds = [5000 + s for s in range(args.skip, args.skip + args.clean)
+                     if s % max(n_clean, 1) == k % max(n_clean, 1)]
         else:
-            seeds = [1000 + s for s in range(args.seeds)]
+            seeds = [1000 + s for s in range(args.skip, args.skip + args.seeds)]
         jobs += [(k, (*w, seed, args.generator)) for k, seed in enumerate(seeds)]
     # seed-major: cut short, every world has had the same number of seeds
     jobs = [j for _, j in sorted(jobs, key=lambda kj: kj[0])]
