@@ -124,7 +124,8 @@ def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapp
 def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[str, tuple[float, bool]],
                      refused: Mapping[str, str], se: Mapping[str, float], space: Space, costs: Costs, *,
                      current: bool, start: World | None, floor: list[Any], have: set[str], obs: Any,
-                     budget_seconds: float, budget_actions: float) -> tuple[list[Unit], list[str]]:
+                     budget_seconds: float, budget_actions: float,
+                     done: Mapping[Any, int] | None = None) -> tuple[list[Unit], list[str]]:
     """The plan's steps with the current pose's part bought only for the targets the data have
     measured; (units, the targets deferred).
 
@@ -149,7 +150,7 @@ def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[s
         now = plan(robot, res, known, space, costs, current=current, start=start, budget_seconds=budget_seconds,
                    budget_actions=budget_actions,
                    required=[c for c in floor if c.procedure not in have and c not in given],
-                   obs=obs, given=given)
+                   obs=obs, given=given, done=done)
     except UserError:
         return units, []
     here = [u for u in now.units if u.candidate.world.mode == pose]
@@ -189,6 +190,7 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
     reason = f"stopped after {max_rounds} rounds"
     met = False
     initial_se: dict[str, float] = {}
+    done: dict[Any, int] = {}  # pairs of each candidate run so far (the repetition cap counts them)
     for r in range(1, max_rounds + 2):
         res = _fit(robot, obs, res)
         se = {p: (res.se.get(p, math.inf) if res is not None else math.inf) for p in targets}
@@ -211,10 +213,11 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
         have = set(obs.procedures()) if obs is not None else set()
         design = plan(robot, res, targets, space, costs, current=current, start=world,
                       budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                      required=[c for c in floor if c.procedure not in have], obs=obs)
+                      required=[c for c in floor if c.procedure not in have], obs=obs, done=done)
         design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
             robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
-            budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs))
+            budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs,
+            done=done))
         refused.update(design.refused)
         if not design.units:
             reason = "the plan adds nothing (targets refused or out of reach within the budget)"
@@ -228,7 +231,7 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
             units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
                                                current=current, start=world, floor=floor, have=have, obs=obs,
                                                budget_seconds=budget_seconds - spent_s,
-                                               budget_actions=budget_actions - n_acts)
+                                               budget_actions=budget_actions - n_acts, done=done)
             block = pilot(first_block(units), have, floor)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
         block_design = _block_prediction(robot, res, obs, current, block)
@@ -242,6 +245,8 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
         log("design_round", rec)
         new = execute(written, r)
         obs = new if obs is None else Observations.concat([obs, new])
+        for u in block:
+            done[u.candidate] = done.get(u.candidate, 0) + u.reps
         worlds = [u.candidate.world for u in block for _ in range(u.reps)]
         a = sequence_actions(worlds, sum(u.candidate.measurements * u.reps for u in block), world, end=None)
         for k, n in a.items():

@@ -101,3 +101,26 @@ def test_target_syntax_errors_are_one_line_user_errors():
     for bad in ("a=two", "a=-1%", "zz=1%", ""):
         with pytest.raises(UserError):
             parse_targets(bad, robot)
+
+
+def test_the_repetition_cap_counts_the_pairs_the_data_already_hold():
+    """MAX_REPS bounds the pairs of one step over the whole campaign, not per plan: rounds of the
+    adaptive campaign must not pile repetitions of one level up past it (the fit reads many
+    identical levels as structure and widens the intervals)."""
+    from omnibench.analysis.design.planner import MAX_REPS
+
+    robot = default_robot()
+    sp = _sweep_space(robot)
+    targets = {"a": (0.005, True), "c": (0.01, True)}
+    info = candidate_information(robot, sp.candidates, planning_names(robot))
+    first = plan(robot, None, targets, sp, info=info)
+    top = max(first.units, key=lambda u: u.reps)
+    assert top.reps >= 2  # the cap will bind
+    done = {top.candidate: MAX_REPS - 1}
+    again = plan(robot, None, targets, sp, info=info, done=done)
+    assert again.units
+    for u in again.units:
+        assert u.reps + done.get(u.candidate, 0) <= MAX_REPS, u.candidate.label
+    used = {u.candidate for u in first.units}
+    full = plan(robot, None, targets, sp, info=info, done={c: MAX_REPS for c in used})
+    assert full.units and not any(u.candidate in used for u in full.units)

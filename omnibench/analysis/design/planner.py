@@ -228,12 +228,15 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
          costs: Costs = Costs(), *, current: bool = True, start: World | None = None,
          budget_seconds: float = math.inf, budget_actions: float = math.inf, margin: float = MARGIN,
          required: Sequence[Candidate] = (), info: CandidateInformation | None = None,
-         max_units: int = 200, obs: Any = None, given: Sequence[Candidate] = ()) -> Design:
+         max_units: int = 200, obs: Any = None, given: Sequence[Candidate] = (),
+         done: Mapping[Candidate, int] | None = None) -> Design:
     """The next steps for `targets` from the fit `res` of `obs` (None: the prior alone) on `robot`.
 
     required: candidates always included (a diagnostic floor), unless the data already hold them.
     given: steps that will run anyway (one entry per pair): their information counts as if in
-    hand, they are neither chosen nor priced (the adaptive campaign's later poses)."""
+    hand, they are neither chosen nor priced (the adaptive campaign's later poses).
+    done: pairs of each candidate the data already hold (the adaptive campaign's earlier rounds):
+    the MAX_REPS cap counts them, so that rounds do not pile repetitions of one level up past it."""
     model = res.robot if res is not None else robot
     names = planning_names(model, current)
     for p in targets:
@@ -275,6 +278,7 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     t2 = np.array([(margin * tabs[p] / scale[names.index(p)]) ** 2 for p in active])
     # ---- greedy selection inside each set of worlds; the cheapest set that meets the targets wins
     cands = space.candidates
+    room = np.array([float(max(MAX_REPS - (done or {}).get(c, 0), 0)) for c in cands])
     req = [k for c in required for k, x in enumerate(cands) if x == c and info.usable[k]]
     worlds = list(dict.fromkeys(cands[k].world for k in np.flatnonzero(info.usable)))
     subsets = ([list(s) for n in range(1, len(worlds) + 1) for s in itertools.combinations(worlds, n)]
@@ -294,16 +298,19 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
             break  # every remaining set of worlds costs more to set up than the best plan in total
         if sum(setup_acts.values()) > budget_actions or rest > budget_seconds:
             continue
-        ks = np.array([k for k in np.flatnonzero(info.usable) if cands[k].world in ws], dtype=int)
+        ks = np.array([k for k in np.flatnonzero(info.usable) if cands[k].world in ws and (room[k] > 0 or k in req)],
+                      dtype=int)
         bs, ba = budget_seconds - rest, budget_actions - sum(setup_acts.values())
-        chosen, M, spent_s, spent_a, why = _greedy(M0, info.info, cands, ks, req, tidx, t2, costs, max_units, bs, ba)
+        chosen, M, spent_s, spent_a, why = _greedy(M0, info.info, cands, ks, req, tidx, t2, costs, max_units, bs, ba,
+                                                      room)
         chosen, M = _prune(chosen, M, infos=info.info, cands=cands, req=req, tidx=tidx, t2=t2, costs=costs)
-        chosen, M = _exchange(chosen, M, infos=info.info, cands=cands, ks=ks, req=req, tidx=tidx, t2=t2, costs=costs)
+        chosen, M = _exchange(chosen, M, infos=info.info, cands=cands, ks=ks, req=req, tidx=tidx, t2=t2, costs=costs,
+                              room=room)
         greedy_total = costs.of(rest, setup_acts) + _units_cost(chosen, cands, costs)
         rounded = None
         if not _misses(M, tidx, t2) and (best is None or best[0][0] or greedy_total <= GATE * best[0][2]):
             rounded = _continuous(M0, info.info, cands, _columns(M, info.info, ks, chosen, req, tidx, t2, cands, costs),
-                                  req, tidx, t2, costs, max_units, bs, ba)
+                                  req, tidx, t2, costs, max_units, bs, ba, room)
         if rounded is not None and (_misses(rounded[1], tidx, t2), _units_cost(rounded[0], cands, costs)) < (
                 _misses(M, tidx, t2), _units_cost(chosen, cands, costs) - 1e-9):
             chosen, M, why = rounded  # the rounded convex optimum: cheaper (or meets what the greedy missed)
@@ -345,9 +352,10 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
 
 def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: np.ndarray, required: Sequence[int],
             tidx: np.ndarray, t2: np.ndarray, costs: Costs, max_units: int, budget_s: float,
-            budget_a: float) -> tuple[dict[int, int], np.ndarray, float, float, str]:
+            budget_a: float, room: np.ndarray | None = None) -> tuple[dict[int, int], np.ndarray, float, float, str]:
     """Add, one at a time, the candidate of `ks` (repeated r in REPS times) with the largest drop of
-    Phi per second of cost; (chosen {k: reps}, information, robot s, actions, why it stopped)."""
+    Phi per second of cost; (chosen {k: reps}, information, robot s, actions, why it stopped).
+    room: pairs each candidate (index into cands) may still get (default MAX_REPS)."""
     M = M0.copy()
     chosen: dict[int, int] = {}
     spent_s = spent_a = 0.0
@@ -363,6 +371,7 @@ def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: n
     rs = np.array([cands[k].robot_seconds for k in ks])
     ms = np.array([cands[k].measurements for k in ks])
     I = infos[ks]
+    cap = room[ks] if room is not None else np.full(len(ks), float(MAX_REPS))
     for _ in range(max_units):
         phi = _phi(M, tidx, t2)
         if phi <= len(tidx) + 1e-9:
@@ -377,7 +386,7 @@ def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: n
         ratio = (phi - new) / (reps[:, None] * unit[None])
         have = np.array([chosen.get(int(k), 0) for k in ks])
         ok = ((spent_s + reps[:, None] * rs[None] <= budget_s + 1e-9) & (spent_a + reps[:, None] * ms[None] <= budget_a)
-              & (have[None] + reps[:, None] <= MAX_REPS))
+              & (have[None] + reps[:, None] <= cap[None] + 1e-9))
         ratio = np.where(ok, ratio, -np.inf)
         r, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if not ratio[r, j] > 0:
@@ -424,7 +433,8 @@ def _columns(M: np.ndarray, infos: np.ndarray, ks: np.ndarray, chosen: Mapping[i
 
 def _continuous(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: np.ndarray,
                 required: Sequence[int], tidx: np.ndarray, t2: np.ndarray, costs: Costs, max_units: int,
-                budget_s: float, budget_a: float) -> tuple[dict[int, int], np.ndarray, str] | None:
+                budget_s: float, budget_a: float, room: np.ndarray | None = None
+                ) -> tuple[dict[int, int], np.ndarray, str] | None:
     """The convex optimum over real repetitions (optimal.cheapest_weights), rounded to whole pairs:
     its integer parts, completed by the greedy (from there, over the candidates the optimum uses
     first), then pruned. None when the optimum is not found or the rounded design misses a
@@ -433,7 +443,7 @@ def _continuous(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], k
         return None
     unit = np.array([costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) for k in ks])
     lo = np.array([float(sum(1 for r in required if r == k)) for k in ks])
-    hi = np.full(len(ks), float(MAX_REPS))
+    hi = room[ks] if room is not None else np.full(len(ks), float(MAX_REPS))
     w = cheapest_weights(M0, infos[ks], unit, tidx, t2, lo, np.maximum(hi, lo))
     if w is None:
         return None
@@ -445,11 +455,12 @@ def _continuous(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], k
     # step is often bought cheaper as a whole cheap one); prune; keep the cheaper that meets the targets
     for pool in (support, ks):
         chosen, M, spent_s, spent_a, why = _greedy(M0, infos, cands, pool, base, tidx, t2, costs, max_units,
-                                                   budget_s, budget_a)
+                                                   budget_s, budget_a, room)
         if spent_s > budget_s + 1e-9 or spent_a > budget_a + 1e-9:
             continue
         chosen, M = _prune(chosen, M, infos=infos, cands=cands, req=required, tidx=tidx, t2=t2, costs=costs)
-        chosen, M = _exchange(chosen, M, infos=infos, cands=cands, ks=ks, req=required, tidx=tidx, t2=t2, costs=costs)
+        chosen, M = _exchange(chosen, M, infos=infos, cands=cands, ks=ks, req=required, tidx=tidx, t2=t2, costs=costs,
+                              room=room)
         key = (_misses(M, tidx, t2), _units_cost(chosen, cands, costs))
         if best is None or key < best[0]:
             best = (key, (chosen, M, why))
@@ -478,7 +489,7 @@ def _prune(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands: S
 
 def _exchange(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands: Sequence[Candidate],
               ks: np.ndarray, req: Sequence[int], tidx: np.ndarray, t2: np.ndarray,
-              costs: Costs) -> tuple[dict[int, int], np.ndarray]:
+              costs: Costs, room: np.ndarray | None = None) -> tuple[dict[int, int], np.ndarray]:
     """Exchange (Fedorov's idea, on whole pairs): replace one pair by the cheapest candidate of `ks`
     that keeps every target met, dearest pair first, while that lowers the cost. Whole pairs
     overshoot (one long run can carry several times what a target needs); a cheaper step often
@@ -491,7 +502,9 @@ def _exchange(chosen: dict[int, int], M: np.ndarray, *, infos: np.ndarray, cands
     for k in sorted(chosen, key=lambda k: -costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements})):
         ck = costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements})
         while chosen.get(k, 0) > (1 if k in req else 0):
-            cheaper = np.flatnonzero(unit < ck - 1e-9)
+            left = (room[ks] if room is not None else np.full(len(ks), float(MAX_REPS))) - np.array(
+                [chosen.get(int(j), 0) for j in ks])
+            cheaper = np.flatnonzero((unit < ck - 1e-9) & (left >= 1))
             if not len(cheaper):
                 break
             Ms = (M - infos[k])[None] + I[cheaper]
