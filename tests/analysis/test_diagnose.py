@@ -211,3 +211,18 @@ def test_a_core_re_estimate_does_not_stand_in_for_a_pair_that_explains_more():
 
     assert _instead_of_core(inertia, [lag, inertia, latency], [lag, latency], lambda: pair) is pair
     assert _instead_of_core(adequate_effect, [lag, adequate_effect], [lag, latency], never) == [adequate_effect]
+
+
+def test_the_report_says_why_a_structure_score_can_rise_with_an_accepted_effect():
+    """On the 2019 logs the pair lag + latency took the structure score 262 -> 471: the scores are
+    each on their own fit's residual scale. The evidence line says so when the score rises, and
+    only then."""
+    from omnibench.analysis.diagnosis.core import Candidate
+
+    rose = Candidate("actuator_lag", 1, 100.0, lr=900.0, p=1e-30, q=1, aic_drop=898.0, cv_gain=50.0,
+                     structure_before=262.0, structure_after=471.0)
+    fell = Candidate("actuator_lag", 1, 100.0, lr=900.0, p=1e-30, q=1, aic_drop=898.0, cv_gain=50.0,
+                     structure_before=471.0, structure_after=262.0)
+    assert "structure 262 -> 471 (each score is measured against its own fit's residual scale" in rose.evidence_line()
+    assert fell.evidence_line().endswith("structure 471 -> 262")
+

@@ -92,6 +92,16 @@ class Candidate:
     remaining: list = field(default_factory=list)  # ... of which still significant with it: not adequate
     partner: str = ""  # the other effect when it was added as a pair
 
+    def evidence_line(self) -> str:
+        """The report's one-line evidence; says why a structure score can rise with the effect."""
+        line = (f"evidence: LR = {self.lr:.1f} for {self.q} parameter(s), p = {self.p:.1e}; AIC -{self.aic_drop:.1f}; "
+                f"held-out weighted error -{self.cv_gain:.1f}; structure {self.structure_before:.0f} -> "
+                f"{self.structure_after:.0f}")
+        if self.structure_after > self.structure_before:
+            line += (" (each score is measured against its own fit's residual scale: the effect shrinks that "
+                     "scale, so the structure it leaves stands out more; what is left is listed as unexplained)")
+        return line
+
     def evidence(self) -> dict[str, Any]:
         def f(x: float) -> float | None:
             return float(x) if x is not None and math.isfinite(x) else None
@@ -185,8 +195,7 @@ class Diagnosis:
 
                 if wheel_order_note(c.name, c.values, c.se):
                     L.append(f"    {wheel_order_note(c.name, c.values, c.se)}")
-                L.append(f"    evidence: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e}; AIC -{c.aic_drop:.1f}; "
-                         f"held-out weighted error -{c.cv_gain:.1f}; structure {c.structure_before:.0f} -> {c.structure_after:.0f}")
+                L.append(f"    {c.evidence_line()}")
                 if c.name in self.exposed_by:
                     L.append(f"    exposed by: {self.exposed_by[c.name].location()}")
         else:
