@@ -2,6 +2,7 @@
 fixed grid on simulated worlds.
 
     nice .venv/bin/python benchmarks/design.py [--seeds 5] [--effect driver_deadband] [--no-effect-world]
+    nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --rounds   # each round: what ran, SE / target, SE / planned
 
 Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files) is simulated
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
@@ -39,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-effect-world", action="store_true", help="clean worlds only")
     ap.add_argument("--robot-second", type=float, default=3.0, help="cost of a robot second (s)")
     ap.add_argument("--diagnose", action="store_true", help="also run diagnose on the effect worlds (slow)")
+    ap.add_argument("--rounds", action="store_true",
+                    help="also print each adaptive round: what ran, robot s, SE / target after it")
     args = ap.parse_args(argv)
 
     import numpy as np
@@ -110,6 +113,16 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             print(f"{wname:<16} {seed:>4} {row['s']:>8.0f} {row['a']:>8} {str(res.met)[0]:>4} {row['rounds']:>6} "
                   f"{sum(cover):>3}/{len(cover):<2} {row['host']:>7.0f}  {fixed_met}", flush=True)
+            if args.rounds:
+                for rd in res.rounds:
+                    tgt = {p: rel[p] * abs(f.values[p]) for p in TARGETS if f is not None}
+                    hit = {p: rd.se[p] / tgt[p] for p in tgt if rd.se.get(p)}
+                    vs_plan = {p: rd.se[p] / rd.block_expected_se[p] for p in hit if rd.block_expected_se.get(p)}
+                    print(f"    round {rd.index}: {rd.robot_seconds:.0f} s, {sum(rd.actions.values())} actions; "
+                          f"ran {', '.join(rd.ran)}", flush=True)
+                    print("      fitted SE / target: " + ", ".join(f"{p} {v:.2f}" for p, v in hit.items())
+                          + ("; fitted / planned SE: " + ", ".join(f"{p} {v:.2f}" for p, v in vs_plan.items())
+                             if vs_plan else ""), flush=True)
     print()
     for wname, _ in worlds:
         rs = [r for r in rows if r["world"] == wname]
