@@ -44,3 +44,30 @@ def test_exchange_replaces_a_dear_pair_by_a_cheaper_one_that_still_meets_the_tar
     chosen, _ = _exchange({0: 1}, M0 + weak[0], infos=weak, cands=[long_run, short_run], ks=np.array([0, 1]),
                           req=[], tidx=np.array([0]), t2=np.array([0.01]), costs=Costs(robot_second=3.0))
     assert chosen == {0: 1}
+
+
+def test_a_dear_pair_is_replaced_by_two_cheaper_ones_together():
+    # one dear step informs both targets; each cheap one informs one. No single cheaper step meets
+    # both targets, so the one-pair exchange keeps the dear step; the neighbourhood search takes it
+    # out and completes with both cheap ones (cost 2 x 3 s x 3 < 10 s x 3)
+    from omnibench.analysis.design.planner import _improve
+
+    ground = World("ground", "standard", None, 0.0)
+    dear = Candidate("forward", ground, duty=0.5, duration=4.5, robot_seconds=10.0)
+    cheap_a = Candidate("forward", ground, duty=0.3, duration=1.5, robot_seconds=3.0)
+    cheap_b = Candidate("forward", ground, duty=0.7, duration=1.5, robot_seconds=3.0)
+    infos = np.array([np.diag([150.0, 150.0]), np.diag([150.0, 0.0]), np.diag([0.0, 150.0])])
+    M0 = 1e-3 * np.eye(2)
+    tidx, t2 = np.array([0, 1]), np.array([0.01, 0.01])
+    cands, costs, room = [dear, cheap_a, cheap_b], Costs(robot_second=3.0), np.full(3, 8.0)
+    kept, _ = _exchange({0: 1}, M0 + infos[0], infos=infos, cands=cands, ks=np.arange(3), req=[], tidx=tidx, t2=t2,
+                        costs=costs, room=room)
+    assert kept == {0: 1}
+    chosen, M = _improve({0: 1}, M0 + infos[0], M0=M0, infos=infos, cands=cands, ks=np.arange(3), req=[], tidx=tidx,
+                         t2=t2, costs=costs, room=room, max_units=20, budget_s=np.inf, budget_a=np.inf)
+    assert chosen == {1: 1, 2: 1}
+    assert np.all(np.diag(np.linalg.inv(M)) <= t2)
+    # a required step (the diagnostic floor) is never taken out
+    chosen, _ = _improve({0: 1}, M0 + infos[0], M0=M0, infos=infos, cands=cands, ks=np.arange(3), req=[0], tidx=tidx,
+                         t2=t2, costs=costs, room=room, max_units=20, budget_s=np.inf, budget_a=np.inf)
+    assert chosen == {0: 1}
