@@ -146,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     known = []
     for seed in seeds:
         ff = fixed_fits[("clean", seed)]
-        info = candidate_information(ff.robot, space.candidates, planning_names(ff.robot), group_s2=ff.group_s2)
+        info = candidate_information(ff.robot, space.candidates, planning_names(ff.robot), group_s2=ff.group_s2,
+                                    group_dof=ff.group_dof)
         d = plan(ff.robot, None, targets, space, costs, required=floor, info=info)
         known.append((d.robot_seconds, d.operator_actions, all(d.met.values())))
     ks, ka = statistics.median(k[0] for k in known), statistics.median(k[1] for k in known)

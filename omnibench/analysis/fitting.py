@@ -240,6 +240,8 @@ class FitResult:
     s2: float = 1.0
     #: chi^2 per degree of freedom of each "procedure/signal" group (used to scale its noise)
     group_s2: dict[str, float] = field(default_factory=dict)
+    #: degrees of freedom of each group (entries less their leverage): how far its chi^2/dof can be trusted
+    group_dof: dict[str, float] = field(default_factory=dict)
     initial: dict[str, float] = field(default_factory=dict)
     fixed: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
@@ -254,6 +256,15 @@ class FitResult:
     def fitted(self) -> list[str]:
         """Parameters that were estimated (identifiable ones)."""
         return [p for p in self.free if p not in self.fixed]
+
+    def misses_something(self) -> list[str]:
+        """Why the declared model does not fit these data (the fit's own two flags, as in its notes):
+        chi^2/dof above MISFIT_S2, or a group whose residuals are smooth along speed (z above
+        STRUCTURE_Z). Empty when neither."""
+        out = [f"chi2/dof {self.s2:.3g}"] if self.s2 > MISFIT_S2 else []
+        out += [f"{g}: residual structure {st['z']:.1f} sigma" for g, st in (self.structure or {}).items()
+                if st["z"] > STRUCTURE_Z]
+        return out
 
     def summary_rows(self) -> list[dict[str, Any]]:
         rows = []
@@ -654,12 +665,14 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     g_used = groups[used]
     s2_row = np.empty(n_used)
     group_s2: dict[str, float] = {}
+    group_dof: dict[str, float] = {}
     residuals = _residual_frame(pred, f, sigma_stated, used)
     structure = residual_structure(residuals)
     for g in np.unique(g_used):
         m = g_used == g
         dof_g = max(float(m.sum() - lev[m].sum()), 1.0)
         group_s2[str(g)] = float(np.sum(r[m] ** 2) / dof_g)
+        group_dof[str(g)] = dof_g
         st = structure.get(str(g))
         if st is not None and st["z"] > STRUCTURE_Z and 0 < st["rho"] < 1:
             # residuals that are smooth along speed carry fewer independent pieces of information
@@ -715,7 +728,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}"
                                   + (" (consistent with zero)" if ci[p][0] <= 0 <= ci[p][1] else ""))
     runs_used = sorted(set(residuals.loc[residuals["used"], "run"]))
-    if s2 > 4:
+    if s2 > MISFIT_S2:
         notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
                      "something (see residuals / omnibench diagnose); intervals are widened by s")
     for g, st in structure.items():
@@ -731,7 +744,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),
         condition_number=cond_req, rank=rank_req, identifiable=verdicts, residuals=residuals, chi2=chi2, dof=dof,
         runs_used=runs_used, procedures=procs, s2=s2,
-        group_s2={g: v * stated_factor.get(g, 1.0) for g, v in group_s2.items()},
+        group_s2={g: v * stated_factor.get(g, 1.0) for g, v in group_s2.items()}, group_dof=group_dof,
         initial={p: param_value(robot, p) for p in free},
         fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
         date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -740,6 +753,8 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
 
 #: Residual smoothness (z of the lag-1 autocorrelation) above which a group is flagged as structured.
 STRUCTURE_Z = 3.0
+#: chi^2/dof above which the fit says the residuals exceed the measurement noise (the model misses something).
+MISFIT_S2 = 4.0
 
 
 def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:

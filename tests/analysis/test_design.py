@@ -124,3 +124,28 @@ def test_the_repetition_cap_counts_the_pairs_the_data_already_hold():
     used = {u.candidate for u in first.units}
     full = plan(robot, None, targets, sp, info=info, done={c: MAX_REPS for c in used})
     assert full.units and not any(u.candidate in used for u in full.units)
+
+
+def test_only_a_group_with_enough_degrees_of_freedom_lends_its_noise_to_another():
+    """A group without data is planned at the noise of the same estimator elsewhere, but only a
+    group whose chi^2/dof is worth something lends it: one forward pair's tape distances (about
+    one degree of freedom) are a chi^2_1 draw (0.004-4), and a lateral design planned on a lucky
+    0.13 is then a third of what the lateral runs need."""
+    from omnibench.analysis.design.information import expected_s2
+    from omnibench.analysis.fitting import REWEIGHT_MIN_DOF
+
+    s2 = {"forward/forward": 0.13, "forward/w": 0.15, "sweep/omega": 0.4}
+    dof = {"forward/forward": 1.0, "forward/w": 6.0, "sweep/omega": 10.0 * REWEIGHT_MIN_DOF}
+    out = expected_s2(s2, dof)
+    assert out["forward/forward"] == 0.13 and out["forward/w"] == 0.15  # a group's own figure is its own
+    assert "lateral/forward" not in out and "lateral/left" not in out  # the stated tape noise (s^2 = 1)
+    assert out["lateral/w"] == 0.4  # the sweep's encoder speeds: the same estimator, enough dof
+    # without degrees of freedom every group lends (the largest of the same estimator)
+    assert expected_s2(s2)["lateral/forward"] == 0.13 and expected_s2(s2)["lateral/w"] == 0.4
+    # a fit reports the degrees of freedom of each group
+    robot = default_robot()
+    obs = simulated_observations(robot.replace(**TRUTH), seed=3, procedures=["sweep", "forward"])
+    res = fit(robot, obs)
+    assert set(res.group_dof) == set(res.group_s2)
+    n_fwd = int(obs.forward.shape[0])
+    assert 0 < res.group_dof["forward/forward"] < n_fwd

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from omnibench.analysis.design.space import Candidate
-from omnibench.analysis.fitting import MIN_SWEEP_SPEED_WIDTHS, FitResult, _Problem, param_scale
+from omnibench.analysis.fitting import MIN_SWEEP_SPEED_WIDTHS, REWEIGHT_MIN_DOF, FitResult, _Problem, param_scale
 from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
 )
@@ -79,16 +79,23 @@ ESTIMATOR = {"sweep/omega": "encoder speed", "forward/w": "encoder speed", "late
              "sweep/current": "current"}
 
 
-def expected_s2(group_s2: Mapping[str, float]) -> dict[str, float]:
+def expected_s2(group_s2: Mapping[str, float], group_dof: Mapping[str, float] | None = None) -> dict[str, float]:
     """Noise scale (chi^2/dof) each group is expected to show: the fit's where the group has data;
     before that, the largest one the fit found for a group of the same estimator (the encoder
     speeds of the sweep and of the ground runs come from the same straight-line fit of encoder
     angles, whose stated quantisation floor over-states a steadily turning encoder's error about
-    3-6 times on the simulated robot); 1 (the stated noise) when the estimator has no data yet."""
+    3-6 times on the simulated robot); 1 (the stated noise) when the estimator has no data yet.
+    With `group_dof`, only a group with at least REWEIGHT_MIN_DOF degrees of freedom lends its
+    figure to another (the fit's own rule for weighting a group by its noise): the chi^2/dof of
+    one forward pair (two tape distances, one degree of freedom after C_r) is a chi^2_1 draw,
+    0.13-0.2 on two benchmark seeds where the lateral tape groups then showed 0.5-1.3."""
     out = {g: float(v) for g, v in group_s2.items() if v and math.isfinite(v) and v > 0}
+    lenders = {g: v for g, v in out.items() if group_dof is None or group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF}
     for g, est in ESTIMATOR.items():
-        seen = [out[h] for h, e in ESTIMATOR.items() if e == est and h in out]
-        if g not in out and seen:
+        if g in out:
+            continue
+        seen = [v for h, v in lenders.items() if ESTIMATOR.get(h) == est]
+        if seen:
             out[g] = max(seen)
     return out
 
@@ -105,8 +112,10 @@ class CandidateInformation:
 
 def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
                           group_s2: Mapping[str, float] | None = None,
-                          effects: Mapping[str, Any] | None = None) -> CandidateInformation:
-    """Information each candidate adds about `names` at `robot`'s parameter values."""
+                          effects: Mapping[str, Any] | None = None,
+                          group_dof: Mapping[str, float] | None = None) -> CandidateInformation:
+    """Information each candidate adds about `names` at `robot`'s parameter values (each group's
+    noise scale from `expected_s2(group_s2, group_dof)`)."""
     names = list(names)
     scale = np.array([param_scale(robot, p) for p in names])
     K, n = len(cands), len(names)
@@ -131,7 +140,7 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     used &= ~slow
     s2 = np.ones(len(t))
     groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
-    for g, v in expected_s2(group_s2 or {}).items():
+    for g, v in expected_s2(group_s2 or {}, group_dof).items():
         if v and math.isfinite(v) and v > 0:
             s2[groups == g] = v
     pred.measured = f0.copy()
