@@ -6,7 +6,11 @@ Each round fits all data so far, plans the whole remaining design from that fit
 the flip is where the operator is busy anyway, and re-planning there uses the newest data.
 The first time a procedure runs, only a pilot (its diagnostic floor, else its planned steps
 at half the repetitions) is run: its fit measures the noise the plan assumed (each observation group's
-chi^2/dof), so the rest is planned with the noise the robot actually has.
+chi^2/dof), so the rest is planned with the noise the robot actually has. Round 1 is the whole
+diagnostic floor, the forward pair first where the robot rests (C_r is then measured before the
+sweep is topped up); the lateral runs' first visit is the plan for half the information (their
+values and noise are guesses until then). When the floor's fit says the declared model misses
+something, the rest of the lab's own grid runs instead of a plan, for diagnose.
 
 `adaptive_loop` is independent of how steps are executed: `execute(files)` runs procedure
 files and returns their Observations (the campaign runs them through the runner on a port;
@@ -24,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from omnibench.analysis.design.files import diagnostic_floor, space_from_files, write_procedures
+from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files, write_procedures
 from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
 from omnibench.bench.campaign import Analyse
@@ -87,6 +91,22 @@ def first_block(units: list[Unit]) -> list[Unit]:
     return out
 
 
+def half_information_pilot(block: list[Unit], replan: Callable[[dict[str, tuple[float, bool]]], Any],
+                           targets: Mapping[str, tuple[float, bool]]) -> list[Unit]:
+    """The lateral runs' first visit: the plan for every target at sqrt(2) x its value (half the
+    information), in the current pose. Until they run, the roller terms are planned at the robot
+    file's values (a relative target on c_r at half its value asks for 4 x the information) and
+    the lateral groups' noise at the forward runs'; half of it measures both, the rest is planned
+    with them. (A single pair does not separate a_r from b_r: the pilot must be a design, not a step.)"""
+    try:
+        half = replan({p: (v * math.sqrt(2.0), rel) for p, (v, rel) in targets.items()})
+    except UserError:
+        return block
+    mode = block[0].candidate.world.mode
+    out = [u for u in first_block(half.units) if u.candidate.world.mode == mode]
+    return out if any(u.candidate.procedure == "lateral" for u in out) else block
+
+
 def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
     """For procedures without data yet: their `required` candidates (the diagnostic floor) alone
     if the plan has any, else all their units at half the repetitions (a subset of the steps may
@@ -103,6 +123,37 @@ def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[U
         else:  # every step the plan chose (together they separate the targets), at half the repetitions
             keep.update({id(u): max(1, math.ceil(PILOT * u.reps)) for u in us})
     return [Unit(u.candidate, keep[id(u)], u.rank) for u in units if id(u) in keep]
+
+
+def rest_of_lab_grid(grid: list[Unit], done: Mapping[Any, int], world: World | None,
+                     budget_seconds: float = math.inf) -> list[Unit]:
+    """The lab's own grid (`fixed_grid_units`) less the pairs already run, the current pose (and
+    world) first, within `budget_seconds` of robot time. What the campaign runs when the declared
+    model misses something: the planner's information assumes the model, and diagnose is
+    validated on the lab's grid (benchmarks/diagnose.py)."""
+    left = [Unit(u.candidate, u.reps - done.get(u.candidate, 0), u.rank) for u in grid
+            if u.reps > done.get(u.candidate, 0)]
+    if world is not None:
+        left.sort(key=lambda u: (u.candidate.world.mode != world.mode, u.candidate.world != world, u.rank))
+    out, spent = [], 0.0
+    for u in left:
+        if spent + u.candidate.robot_seconds * u.reps > budget_seconds:
+            continue
+        spent += u.candidate.robot_seconds * u.reps
+        out.append(u)
+    return out
+
+
+def ground_pilot(units: list[Unit], have: set[str], floor: list[Any]) -> list[Unit]:
+    """The ground part of the diagnostic floor (one forward pair), run first, where the robot
+    starts (on the ground, before the flip to the sweep): the first fit then measures C_r and the
+    ground runs' noise together with a, b, c, so the sweep is topped up for C_r at its measured
+    value. C_r's SE is limited by a, b, c (the forward runs see C_r together with the wheel
+    friction), and more sweep levels (1.1 s each) are its cheapest source; planned at the robot
+    file's value, the sweep would buy for a guess, and after the ground block a miss of a few per
+    cent costs a flip back."""
+    return [Unit(u.candidate, 1, u.rank) for u in units
+            if u.candidate in floor and u.candidate.world.mode == "ground" and u.candidate.procedure not in have]
 
 
 def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapping[str, float],
@@ -191,6 +242,8 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
     met = False
     initial_se: dict[str, float] = {}
     done: dict[Any, int] = {}  # pairs of each candidate run so far (the repetition cap counts them)
+    fell_back = ""  # why the rest of the lab's grid ran instead of a plan (the model misses something)
+    floor_checked = False
     for r in range(1, max_rounds + 2):
         res = _fit(robot, obs, res)
         se = {p: (res.se.get(p, math.inf) if res is not None else math.inf) for p in targets}
@@ -211,35 +264,64 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
             reason = "budget spent"
             break
         have = set(obs.procedures()) if obs is not None else set()
-        design = plan(robot, res, targets, space, costs, current=current, start=world,
-                      budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                      required=[c for c in floor if c.procedure not in have], obs=obs, done=done)
-        design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
-            robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
-            budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs,
-            done=done))
-        refused.update(design.refused)
-        if not design.units:
-            reason = "the plan adds nothing (targets refused or out of reach within the budget)"
-            log("design_stop", {"round": r, "why": reason, "notes": design.notes})
+        if fell_back:
+            reason = fell_back
             break
-        deferred: list[str] = []
-        if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
-            # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
-            block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
+        misfit: list[str] = []
+        if not floor_checked and res is not None and all(c.procedure in have for c in floor):
+            # judged once, on the diagnostic floor (one pair per level, made for diagnosis): later rounds
+            # repeat levels, and identical levels whose residuals agree read as structure to the fit
+            floor_checked = True
+            misfit = res.misses_something()
+        if misfit:
+            block = rest_of_lab_grid(fixed_grid_units(robot, files), done, world,
+                                     budget_seconds - spent_s - 2 * space.sweep_rest * 2)
+            fell_back = (f"the declared model misses something ({'; '.join(misfit)}): a plan from its information "
+                         "would be a fiction, so the rest of the lab's own grid ran, for omnibench diagnose; declare "
+                         "what it finds and plan again")
+            if not block:
+                reason = fell_back
+                break
+            design, deferred, why = None, [], fell_back
+            log("design_misfit", {"round": r, "why": fell_back, "misses": misfit})
         else:
-            units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
-                                               current=current, start=world, floor=floor, have=have, obs=obs,
-                                               budget_seconds=budget_seconds - spent_s,
-                                               budget_actions=budget_actions - n_acts, done=done)
-            block = pilot(first_block(units), have, floor)
+            design = plan(robot, res, targets, space, costs, current=current, start=world,
+                          budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
+                          required=[c for c in floor if c.procedure not in have], obs=obs, done=done)
+            design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
+                robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
+                budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs,
+                done=done))
+            refused.update(design.refused)
+            if not design.units:
+                reason = "the plan adds nothing (targets refused or out of reach within the budget)"
+                log("design_stop", {"round": r, "why": reason, "notes": design.notes})
+                break
+            deferred = []
+            why = "largest drop of the weighted A-criterion per second of cost"
+            if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
+                # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
+                block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
+                if world is None or world.mode == "ground":
+                    block = ground_pilot(design.units, have, floor) + block
+            else:
+                units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
+                                                   current=current, start=world, floor=floor, have=have, obs=obs,
+                                                   budget_seconds=budget_seconds - spent_s,
+                                                   budget_actions=budget_actions - n_acts, done=done)
+                block = pilot(first_block(units), have, floor)
+                if "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
+                    block = half_information_pilot(block, lambda t: plan(
+                        robot, res, t, space, costs, current=current, start=world,
+                        budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
+                        required=[c for c in floor if c.procedure not in have], obs=obs, done=done), aims)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
         block_design = _block_prediction(robot, res, obs, current, block)
-        rec = {"round": r, "why": "largest drop of the weighted A-criterion per second of cost"
+        rec = {"round": r, "why": why
                + (f"; in this pose only what {', '.join(p for p in targets if p not in deferred and p not in refused)} "
                   f"need (the later poses measure {', '.join(deferred)})" if deferred else ""),
                "fit_se": {p: _finite(v) for p, v in se.items()}, "targets": tabs,
-               "plan": design.to_json(), "runs_now": [u.candidate.label + f" x{u.reps}" for u in block],
+               "plan": design.to_json() if design is not None else None, "runs_now": [u.candidate.label + f" x{u.reps}" for u in block],
                "expected_se_after_block": {p: _finite(block_design.get(p, math.inf)) for p in targets},
                "files": [str(p) for _, p in written]}
         log("design_round", rec)
@@ -254,9 +336,10 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
         world = worlds[-1]
         spent_s += sum(u.candidate.robot_seconds * u.reps for u in block) + sum(
             2 * space.sweep_rest for _, p in written if "sweep" in p.name)
-        rounds.append(Round(index=r, planned=design.to_json(), ran=rec["runs_now"], files=rec["files"],
+        rounds.append(Round(index=r, planned=rec["plan"] or {}, ran=rec["runs_now"], files=rec["files"],
                             robot_seconds=spent_s, actions=dict(acts),
-                            expected_se={p: _finite(design.se_after.get(p, math.inf)) for p in targets},
+                            expected_se={p: _finite(design.se_after.get(p, math.inf) if design is not None
+                                                    else math.inf) for p in targets},
                             block_expected_se=rec["expected_se_after_block"]))
     if rounds and world is not None:  # the campaign leaves the robot as it found it
         for k, n in world_actions(world, REST).items():
@@ -278,7 +361,8 @@ def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list
     model = res.robot if res is not None else robot
     names = planning_names(model, current)
     ci = candidate_information(model, [u.candidate for u in block], names, current=current,
-                               group_s2=res.group_s2 if res is not None else None)
+                               group_s2=res.group_s2 if res is not None else None,
+                               group_dof=res.group_dof if res is not None else None)
     M = prior_information(res, names, ci.scale, obs) + np.einsum("k,kij->ij", np.array([u.reps for u in block], float),
                                                              ci.info)
     return dict(zip(names, _se(M, ci.scale)))
@@ -408,7 +492,7 @@ def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path]
         model = result.fit.robot
         names = planning_names(model, current)
         ci = candidate_information(model, [u.candidate for u in fixed], names, current=current,
-                                   group_s2=result.fit.group_s2)
+                                   group_s2=result.fit.group_s2, group_dof=result.fit.group_dof)
         M = prior_information(None, names, ci.scale)
         t = 0.0
         seen_rest: set[Any] = set()

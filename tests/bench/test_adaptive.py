@@ -115,3 +115,115 @@ def test_a_target_the_plan_thinks_met_and_the_fit_does_not_is_aimed_lower():
     same, aims = _calibrated(design, targets, {"a": 1.0, "b": 0.5, "c": 2.0}, {"a": 1.5, "b": 1.5, "c": 1.5},
                              lambda t: ("again", t))
     assert same is design and aims == targets
+
+
+def test_the_forward_floor_pair_runs_first_where_the_robot_starts(tmp_path):
+    """The robot starts on the ground: round 1 runs the diagnostic floor's forward pair there, then
+    flips for the sweep's floor, so the first fit measures C_r (and the ground noise) together with
+    a, b, c and the sweep is topped up for C_r at its measured value, not at the robot file's."""
+    import math
+
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
+    from omnibench.bench.adaptive import adaptive_loop
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, C_r=0.03)
+    table = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}
+    seen: list[list[str]] = []
+
+    def execute(written, r):
+        seen.append([proc for proc, _ in written])
+        return Observations.concat([
+            simulated_observations(truth, procedures=[table[p]], files={table[p]: path}, seed=10 * r + n,
+                                   run_prefix=f"r{r}-{n}") for n, (p, path) in enumerate(written)])
+
+    res = adaptive_loop(robot, {"a": (0.01, True), "C_r": (0.01, True)}, procedure_files(None), execute, tmp_path,
+                        max_rounds=1)
+    assert seen[0][0] == "forward_runs" and "upside_down_sweep" in seen[0][1:]
+    # one flip to the sweep and one back to the rest state (no flip before the forward pair)
+    assert res.rounds[0].actions["flip"] == 2 and res.rounds[0].actions["measure"] == 2
+    assert math.isfinite(res.fit.se["C_r"]) and abs(res.fit.values["C_r"] - 0.03) < 5 * res.fit.se["C_r"]
+
+
+def test_the_lateral_runs_first_visit_is_the_plan_for_half_the_information():
+    """Until the lateral runs have data, the roller terms are planned at the robot file's values: the
+    first lateral block is the plan for every target at sqrt(2) x its value, in the current pose
+    only (a single pair would not separate a_r from b_r); the rest is planned from its fit."""
+    import math
+    from types import SimpleNamespace
+
+    from omnibench.analysis.design.planner import Unit
+    from omnibench.analysis.design.space import Candidate
+    from omnibench.bench.adaptive import half_information_pilot
+    from omnibench.bench.procedure import World
+    from omnibench.errors import UserError
+
+    ground, loaded = World("ground", "standard", None, 0.0), World("ground", "standard", None, 4.0)
+    up = World("upside_down", "standard", (0.9,) * 4, 0.0)
+    lat = Candidate("lateral", ground, heading=0.5, speed=0.3, duration=3.0, robot_seconds=8.0, measurements=2)
+    lat4 = Candidate("lateral", loaded, heading=0.5, speed=0.2, duration=3.0, robot_seconds=8.0, measurements=2)
+    sweep = Candidate("sweep", up, duty=0.1, robot_seconds=1.1)
+    asked = []
+
+    def replan(t):
+        asked.append(t)
+        return SimpleNamespace(units=[Unit(lat, 1, 0), Unit(lat4, 1, 1), Unit(sweep, 2, 2)])
+
+    block = [Unit(lat, 2, 0), Unit(lat4, 2, 1)]
+    out = half_information_pilot(block, replan, {"a_r": (0.01, True), "b": (0.002, False)})
+    assert asked == [{"a_r": (pytest.approx(0.01 * math.sqrt(2)), True), "b": (pytest.approx(0.002 * math.sqrt(2)), False)}]
+    assert [(u.candidate, u.reps) for u in out] == [(lat, 1), (lat4, 1)]  # this pose only, half the pairs
+    # a half plan without lateral runs, or no plan at all, leaves the block as it was
+    assert half_information_pilot(block, lambda t: SimpleNamespace(units=[Unit(sweep, 1, 0)]), {"a": (0.1, True)}) == block
+
+    def refuse(t):
+        raise UserError("no step fits the budget")
+
+    assert half_information_pilot(block, refuse, {"a": (0.1, True)}) == block
+
+
+@pytest.mark.slow
+def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan(tmp_path):
+    """On a world with an undeclared driver deadband the diagnostic floor's fit flags the misfit
+    (chi^2/dof, residual structure); planning from the declared model's information would pile
+    up levels to chase targets it cannot meet (the budget, 377 s, and data diagnose then misread),
+    so the rest of the lab's own grid runs, once, and the campaign stops saying why. On a clean
+    world the floor's fit flags nothing."""
+    from omnibench.analysis.design.files import fixed_grid_units
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
+    from omnibench.bench.adaptive import adaptive_loop
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.effects import EFFECTS
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, a_r=2.5, b_r=0.8, c_r=0.02, C_r=0.03)
+    table = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}
+    files = procedure_files(None)
+    fits = {}
+
+    def run(world, folder, max_rounds):
+        def execute(written, r):
+            return Observations.concat([
+                simulated_observations(truth, world_effects=world, procedures=[table[p]], files={table[p]: path},
+                                       seed=100 * r + n, run_prefix=f"r{r}-{n}") for n, (p, path) in enumerate(written)])
+        return adaptive_loop(robot, {"a": (0.001, True), "C_r": (0.001, True)}, files, execute, folder,
+                             max_rounds=max_rounds, log=lambda kind, rec: fits.setdefault(kind, []).append(rec))
+
+    res = run(EFFECTS["driver_deadband"].world(), tmp_path / "deadband", 10)
+    assert not res.met and res.stop_reason.startswith("the declared model misses something")
+    assert len(res.rounds) == 2 and fits["design_misfit"][0]["round"] == 2
+    grid = fixed_grid_units(robot, files)
+    ran: dict = {}
+    for rd in res.rounds:
+        for label in rd.ran:
+            name, reps = label.rsplit(" x", 1)
+            ran[name] = ran.get(name, 0) + int(reps)
+    assert all(ran.get(u.candidate.label, 0) >= u.reps for u in grid)  # every step of the lab's grid ran
+    assert sum(ran.values()) == sum(u.reps for u in grid)  # and nothing more (the floor is part of it)
+    clean = run({}, tmp_path / "clean", 1)
+    assert clean.fit is not None and clean.fit.misses_something() == []
