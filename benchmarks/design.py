@@ -113,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             print(f"{wname:<16} {seed:>4} {row['s']:>8.0f} {row['a']:>8} {str(res.met)[0]:>4} {row['rounds']:>6} "
                   f"{sum(cover):>3}/{len(cover):<2} {row['host']:>7.0f}  {fixed_met}", flush=True)
+            if not res.met:
+                print(f"    stopped: {res.stop_reason}", flush=True)
             if args.rounds:
                 for rd in res.rounds:
                     tgt = {p: rel[p] * abs(f.values[p]) for p in TARGETS if f is not None}

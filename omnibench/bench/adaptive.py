@@ -274,8 +274,9 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
             floor_checked = True
             misfit = res.misses_something()
         if misfit:
-            block = rest_of_lab_grid(fixed_grid_units(robot, files), done, world,
-                                     budget_seconds - spent_s - 2 * space.sweep_rest * 2)
+            grid = fixed_grid_units(robot, files)
+            rests = 2 * space.sweep_rest * len({u.candidate.world for u in grid if u.candidate.procedure == "sweep"})
+            block = rest_of_lab_grid(grid, done, world, budget_seconds - spent_s - rests)
             fell_back = (f"the declared model misses something ({'; '.join(misfit)}): a plan from its information "
                          "would be a fiction, so the rest of the lab's own grid ran, for omnibench diagnose; declare "
                          "what it finds and plan again")
