@@ -258,10 +258,14 @@ class FitResult:
         return [p for p in self.free if p not in self.fixed]
 
     def misses_something(self) -> list[str]:
-        """Why the declared model does not fit these data (the fit's own two flags, as in its notes):
-        chi^2/dof above MISFIT_S2, or a group whose residuals are smooth along speed (z above
-        STRUCTURE_Z). Empty when neither."""
+        """Why the declared model does not fit these data (the fit's own flags, as in its notes):
+        chi^2/dof above MISFIT_S2, overall or in a group of at least REWEIGHT_MIN_DOF degrees of
+        freedom against its stated noise (the overall figure is about 1 once such groups are weighted
+        by their own noise), or a group whose residuals are smooth along speed (z above
+        STRUCTURE_Z). Empty when none."""
         out = [f"chi2/dof {self.s2:.3g}"] if self.s2 > MISFIT_S2 else []
+        out += [f"{g}: chi2/dof {v:.3g} against its stated noise" for g, v in self.group_s2.items()
+                if v > MISFIT_S2 and self.group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF]
         out += [f"{g}: residual structure {st['z']:.1f} sigma" for g, st in (self.structure or {}).items()
                 if st["z"] > STRUCTURE_Z]
         return out
@@ -731,6 +735,12 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     if s2 > MISFIT_S2:
         notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
                      "something (see residuals / omnibench diagnose); intervals are widened by s")
+    for g, v in group_s2.items():  # large groups are weighted by their own noise: judge each against its stated one
+        v_stated = v * stated_factor.get(g, 1.0)
+        if v_stated > MISFIT_S2 and group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF:
+            notes.append(f"{g}: chi2/dof = {v_stated:.3g} against its stated noise: residuals exceed the "
+                         "measurement noise; the model misses something, or the noise is under-stated (see "
+                         "residuals / omnibench diagnose); intervals are widened by it")
     for g, st in structure.items():
         if st["z"] > STRUCTURE_Z:
             notes.append(f"{g}: residuals are smooth along speed (lag-1 autocorrelation {st['rho']:.2f} over "

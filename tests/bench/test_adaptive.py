@@ -216,6 +216,9 @@ def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan
 
     res = run(EFFECTS["driver_deadband"].world(), tmp_path / "deadband", 10)
     assert not res.met and res.stop_reason.startswith("the declared model misses something")
+    # judged against the stated noise group by group (the overall chi^2/dof is ~1 once the large
+    # groups are weighted by their own noise)
+    assert "sweep/current: chi2/dof" in res.stop_reason and "against its stated noise" in res.stop_reason
     assert len(res.rounds) == 2 and fits["design_misfit"][0]["round"] == 2
     grid = fixed_grid_units(robot, files)
     ran: dict = {}
