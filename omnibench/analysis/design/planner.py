@@ -419,6 +419,9 @@ def _improve(chosen: dict[int, int], M: np.ndarray, *, M0: np.ndarray, infos: np
     keep the result when it meets the targets for less. The greedy, the rounding and the single-pair
     exchange each stop at a design no one-pair move improves; a dear step is often replaced only by
     two cheaper ones together (a 4.5 s lateral pair by a 3 s one plus a sweep level)."""
+    # the rounding's exchange ran over its columns only: first every candidate of the worlds
+    chosen, M = _exchange(chosen, M, infos=infos, cands=cands, ks=ks, req=req, tidx=tidx, t2=t2, costs=costs,
+                          room=room)
     best_cost = _units_cost(chosen, cands, costs)
     for _ in range(IMPROVE_PASSES):
         keys = [k for k in chosen if chosen[k] > (1 if k in req else 0)]
