@@ -149,3 +149,21 @@ def test_only_a_group_with_enough_degrees_of_freedom_lends_its_noise_to_another(
     assert set(res.group_dof) == set(res.group_s2)
     n_fwd = int(obs.forward.shape[0])
     assert 0 < res.group_dof["forward/forward"] < n_fwd
+
+
+def test_a_floor_level_the_model_predicts_stuck_is_priced_at_nothing_and_not_planned():
+    # the lab's ±0.06 sweep level: at the robot file's friction the wheel does not turn faster than
+    # the fit's 3 sign widths, so it informs nothing; every other floor level is planned
+    from omnibench.analysis.design.files import diagnostic_floor
+
+    robot = default_robot()
+    files = procedure_files(None)
+    space = space_from_files(robot, files)
+    floor = diagnostic_floor(robot, files, space)
+    info = candidate_information(robot, space.candidates, planning_names(robot))
+    stuck = [c for c in floor if not info.usable[space.candidates.index(c)]]
+    assert [(c.procedure, c.world.wheel_set, c.duty) for c in stuck] == [("sweep", "standard", 0.06)]
+    assert not info.info[space.candidates.index(stuck[0])].any()
+    d = plan(robot, None, {"a": (0.05, True), "b": (0.05, True)}, space, required=floor, info=info)
+    planned = {u.candidate for u in d.units}
+    assert stuck[0] not in planned and all(c in planned for c in floor if c is not stuck[0])

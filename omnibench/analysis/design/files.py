@@ -167,7 +167,9 @@ def diagnostic_floor(robot: Any, files: Mapping[str, str | Path], space: Space) 
     (low duties show a deadband or Stribeck friction, the spread shows curvature: diagnosis needs
     them, an optimal design alone would keep only the extremes) and one forward pair at the lab's
     middle duty (the fit frees C_r with forward runs; diagnosis reads them for a slope or a
-    centre-of-mass offset)."""
+    centre-of-mass offset). The planner leaves out a level at which the model predicts the wheel
+    stuck (the lab's ±0.06 at the robot file's friction): the fit reads a level only where the wheel
+    turns, so the planner prices it at no information (docs/design.md)."""
     fixed = [u.candidate for u in fixed_grid_units(robot, files)]
     first = next((c.world.wheel_set for c in fixed if c.procedure == "sweep"), None)
     out = [c for c in fixed if c.procedure == "sweep" and c.world.wheel_set == first]

@@ -232,7 +232,8 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
          done: Mapping[Candidate, int] | None = None) -> Design:
     """The next steps for `targets` from the fit `res` of `obs` (None: the prior alone) on `robot`.
 
-    required: candidates always included (a diagnostic floor), unless the data already hold them.
+    required: candidates always included (a diagnostic floor), unless the data already hold them
+    or they inform nothing (a sweep level the model predicts stuck: the fit leaves it out).
     given: steps that will run anyway (one entry per pair): their information counts as if in
     hand, they are neither chosen nor priced (the adaptive campaign's later poses).
     done: pairs of each candidate the data already hold (the adaptive campaign's earlier rounds):
