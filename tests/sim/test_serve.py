@@ -117,3 +117,28 @@ def test_wrong_baud_on_pty_is_reported(served) -> None:
         Board.open(served.path, baudrate=9600, timeout=0.5)
     with Board.open(served.path) as b:  # and at the right speed it works again
         assert b.hello.counts_per_rev == 980
+
+
+def test_the_fast_clock_counts_bytes_still_on_their_way_to_the_host_as_unread() -> None:
+    # The fast clock emits the next frame only when the host has read everything (`_Pty.unread`).
+    # A write to the pty master reaches the slave's read queue later, from a kernel worker: on a
+    # busy machine FIONREAD alone read 0 for frames still in flight, the board ran ahead of a host
+    # that was feeding its watchdog, and the watchdog fired (tests/bench/test_person.py failed under
+    # load, 2 runs of 3). Right after every write the frame must count as unread.
+    import os
+    import select as _select
+
+    from omnibench.sim.pty_server import _Pty
+
+    p = _Pty()
+    try:
+        frame = b"\x7e" + bytes(range(41))
+        missed = 0
+        for _ in range(20000):
+            os.write(p.master, frame)
+            missed += p.unread() != len(frame)
+            while _select.select([p.slave], [], [], 0)[0]:
+                os.read(p.slave, 4096)
+        assert missed == 0
+    finally:
+        p.close()
