@@ -68,9 +68,9 @@ class _Pty:
         """Bytes written to the host that it has not read yet.
 
         A write to the master reaches the slave's read queue later, from a kernel worker; FIONREAD
-        alone does not count bytes still on the way, so on a busy machine it read 0 while frames
-        were in flight and the fast clock ran ahead of the host (its watchdog then fired on a host
-        that was feeding it). A poll of the slave first pushes those bytes into the queue (the
+        alone does not count bytes still on the way (it read 0 for a third of the frames just written,
+        on an idle machine), so the fast clock ran ahead of the host, and under load its watchdog
+        fired on a host that was feeding it. A poll of the slave first pushes those bytes into the queue (the
         tty line discipline flushes its pending buffer when a poll finds nothing)."""
         select.select([self.slave], [], [], 0)
         buf = bytearray(4)
