@@ -3,6 +3,7 @@ fixed grid on simulated worlds.
 
     nice .venv/bin/python benchmarks/design.py [--seeds 5] [--effect driver_deadband] [--no-effect-world]
     nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --rounds   # each round: what ran, SE / target, SE / planned
+    nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --prior    # from the robot's previous campaign
 
 Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files) is simulated
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
@@ -40,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-effect-world", action="store_true", help="clean worlds only")
     ap.add_argument("--robot-second", type=float, default=3.0, help="cost of a robot second (s)")
     ap.add_argument("--diagnose", action="store_true", help="also run diagnose on the effect worlds (slow)")
+    ap.add_argument("--prior", action="store_true",
+                    help="start each adaptive campaign from the robot's previous one: that seed's fixed-grid fit "
+                         "(its values and noise; `campaign --adaptive --prior-runs`)")
     ap.add_argument("--rounds", action="store_true",
                     help="also print each adaptive round: what ran, robot s, SE / target after it")
     args = ap.parse_args(argv)
@@ -101,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
 
             with tempfile.TemporaryDirectory() as tmp:
                 res = adaptive_loop(robot, targets, files, execute, Path(tmp), costs=costs, space=space,
-                                    budget_seconds=4 * fixed_s, budget_actions=2 * fixed_a)
+                                    budget_seconds=4 * fixed_s, budget_actions=2 * fixed_a,
+                                    prior=fixed_fits[(wname, seed)] if args.prior else None)
             f = res.fit
             cover = [f.ci95[p][0] <= getattr(truth, p) <= f.ci95[p][1] for p in TARGETS
                      if f is not None and math.isfinite(f.se.get(p, math.nan))]

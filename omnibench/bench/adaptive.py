@@ -12,6 +12,12 @@ sweep is topped up); the lateral runs' first visit is the plan for half the info
 values and noise are guesses until then). When the floor's fit says the declared model misses
 something, the rest of the lab's own grid runs instead of a plan, for diagnose.
 
+With `prior` (the fit of the robot's previous campaign, `campaign --adaptive --prior-runs`) the
+noise and values are not guesses: round 1 is planned at the previous fit's values and each
+group's chi^2/dof (its data are not counted: the robot may have changed), the whole upside-down
+part of that plan runs at once, the lateral runs get no pilot, and every fit starts from the
+previous values.
+
 `adaptive_loop` is independent of how steps are executed: `execute(files)` runs procedure
 files and returns their Observations (the campaign runs them through the runner on a port;
 benchmarks/design.py simulates them). Every decision is passed to `log` (the campaign writes
@@ -209,7 +215,8 @@ def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[s
 
 
 def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
-    """The fit of all data so far, started from the previous round's values (None if it fails)."""
+    """The fit of all data so far, started from the previous round's values (else `robot`'s;
+    None if it fails)."""
     from omnibench.analysis.fitting import fit
 
     if obs is None:
@@ -225,8 +232,9 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
                   costs: Costs = Costs(), limits: Limits = Limits(), current: bool = True,
                   budget_seconds: float = math.inf, budget_actions: float = math.inf,
                   log: Callable[[str, dict[str, Any]], None] = lambda kind, rec: None,
-                  max_rounds: int = MAX_ROUNDS, space: Space | None = None) -> AdaptiveResult:
-    """Plan, run (`execute(files, round) -> Observations`), fit, re-plan; see the module doc."""
+                  max_rounds: int = MAX_ROUNDS, space: Space | None = None, prior: Any = None) -> AdaptiveResult:
+    """Plan, run (`execute(files, round) -> Observations`), fit, re-plan; see the module doc.
+    prior: the FitResult of the robot's previous campaign (its values and noise), or None."""
     from omnibench.analysis.observations import Observations
 
     space = space or space_from_files(robot, files, limits)
@@ -244,8 +252,10 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
     done: dict[Any, int] = {}  # pairs of each candidate run so far (the repetition cap counts them)
     fell_back = ""  # why the rest of the lab's grid ran instead of a plan (the model misses something)
     floor_checked = False
+    start_robot = prior.robot if prior is not None else robot
     for r in range(1, max_rounds + 2):
-        res = _fit(robot, obs, res)
+        res = _fit(start_robot, obs, res)
+        pres = _with_prior_noise(res, prior)  # what the plans see: the previous campaign's noise where no data yet
         se = {p: (res.se.get(p, math.inf) if res is not None else math.inf) for p in targets}
         values = res.values if res is not None else {}
         tabs = target_se(targets, {p: values.get(p, _value(robot, p)) for p in targets})
@@ -285,12 +295,25 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
                 break
             design, deferred, why = None, [], fell_back
             log("design_misfit", {"round": r, "why": fell_back, "misses": misfit})
+        elif prior is not None and res is None:  # round 1 from the previous campaign's values and noise
+            design = _plan_from_prior(prior, targets, space, costs, current=current, start=world,
+                                      budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
+                                      required=floor)
+            refused.update(design.refused)
+            if not design.units:
+                reason = "the plan adds nothing (targets refused or out of reach within the budget)"
+                log("design_stop", {"round": r, "why": reason, "notes": design.notes})
+                break
+            deferred, aims = [], dict(targets)
+            why = "largest drop of the weighted A-criterion per second of cost, at the previous campaign's noise"
+            block = ground_pilot(design.units, have, floor) + [u for u in design.units
+                                                               if u.candidate.world.mode == "upside_down"]
         else:
-            design = plan(robot, res, targets, space, costs, current=current, start=world,
+            design = plan(robot, pres, targets, space, costs, current=current, start=world,
                           budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
                           required=[c for c in floor if c.procedure not in have], obs=obs, done=done)
             design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
-                robot, res, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
+                robot, pres, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
                 budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs,
                 done=done))
             refused.update(design.refused)
@@ -306,18 +329,18 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
                 if world is None or world.mode == "ground":
                     block = ground_pilot(design.units, have, floor) + block
             else:
-                units, deferred = defer_unmeasured(design.units, robot, res, aims, refused, se, space, costs,
+                units, deferred = defer_unmeasured(design.units, robot, pres, aims, refused, se, space, costs,
                                                    current=current, start=world, floor=floor, have=have, obs=obs,
                                                    budget_seconds=budget_seconds - spent_s,
                                                    budget_actions=budget_actions - n_acts, done=done)
                 block = pilot(first_block(units), have, floor)
-                if "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
+                if prior is None and "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
                     block = half_information_pilot(block, lambda t: plan(
-                        robot, res, t, space, costs, current=current, start=world,
+                        robot, pres, t, space, costs, current=current, start=world,
                         budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
                         required=[c for c in floor if c.procedure not in have], obs=obs, done=done), aims)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
-        block_design = _block_prediction(robot, res, obs, current, block)
+        block_design = _block_prediction(robot, pres, obs, current, block, prior)
         rec = {"round": r, "why": why
                + (f"; in this pose only what {', '.join(p for p in targets if p not in deferred and p not in refused)} "
                   f"need (the later poses measure {', '.join(deferred)})" if deferred else ""),
@@ -352,18 +375,50 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
     return final
 
 
-def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list[Unit]) -> dict[str, float]:
-    """Expected SE after only `block` runs (the design's information restricted to it)."""
+def _with_prior_noise(res: Any, prior: Any) -> Any:
+    """`res` with the previous campaign's noise (chi^2/dof and dof) for the groups it has no data
+    of yet (the lateral runs before they run), so that their plan is not made at noise lent from
+    another group; `res` itself when there is no previous campaign."""
+    if res is None or prior is None:
+        return res
+    import dataclasses
+
+    missing = [g for g in prior.group_s2 if g not in res.group_s2]
+    if not missing:
+        return res
+    return dataclasses.replace(res, group_s2={**res.group_s2, **{g: prior.group_s2[g] for g in missing}},
+                               group_dof={**res.group_dof, **{g: prior.group_dof.get(g, 0.0) for g in missing}})
+
+
+def _plan_from_prior(prior: Any, targets: Mapping[str, tuple[float, bool]], space: Space, costs: Costs, *,
+                     current: bool, start: World | None, budget_seconds: float, budget_actions: float,
+                     required: list[Any]) -> Any:
+    """The whole campaign planned at the previous fit's values and each group's noise, its data
+    not counted (the prior alone as information)."""
+    from omnibench.analysis.design.information import candidate_information
+    from omnibench.analysis.design.planner import planning_names
+
+    info = candidate_information(prior.robot, space.candidates, planning_names(prior.robot, current),
+                                 current=current, group_s2=prior.group_s2, group_dof=prior.group_dof)
+    return plan(prior.robot, None, targets, space, costs, current=current, start=start,
+                budget_seconds=budget_seconds, budget_actions=budget_actions, required=required, info=info)
+
+
+def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list[Unit],
+                      prior: Any = None) -> dict[str, float]:
+    """Expected SE after only `block` runs (the design's information restricted to it; before any
+    data at the previous campaign's values and noise when there is one)."""
     import numpy as np
 
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import _se, planning_names
 
-    model = res.robot if res is not None else robot
+    noise = res if res is not None else prior
+    model = noise.robot if noise is not None else robot
     names = planning_names(model, current)
     ci = candidate_information(model, [u.candidate for u in block], names, current=current,
-                               group_s2=res.group_s2 if res is not None else None,
-                               group_dof=res.group_dof if res is not None else None)
+                               group_s2=noise.group_s2 if noise is not None else None,
+                               group_dof=noise.group_dof if noise is not None else None)
     M = prior_information(res, names, ci.scale, obs) + np.einsum("k,kij->ij", np.array([u.reps for u in block], float),
                                                              ci.info)
     return dict(zip(names, _se(M, ci.scale)))
@@ -393,11 +448,14 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
                           current: bool = True, budget_minutes: float | None = None,
                           budget_actions: int | None = None, echo: Callable[[str], None] = print,
                           stages: tuple[str, ...] = ("fit", "validate-energy", "diagnose"),
-                          energy: bool = True, analyse: "Analyse | None" = None) -> dict[str, Any]:
+                          energy: bool = True, analyse: "Analyse | None" = None,
+                          prior_runs: tuple[Path, ...] = ()) -> dict[str, Any]:
     """`omnibench campaign --adaptive`: the adaptive loop on `port` through the runner, then the
     energy trajectories, the analysis stages and the report (with the design's rounds).
 
-    analyse: as for `run_campaign` (the command line passes omnibench.cli.stages.run_analysis)."""
+    analyse: as for `run_campaign` (the command line passes omnibench.cli.stages.run_analysis).
+    prior_runs: run folders of the robot's previous campaign: their fit's values and noise plan
+    round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
     from omnibench.bench.campaign import make_plots, procedure_files, write_report
@@ -414,6 +472,12 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     for name, v in (("--budget-minutes", budget_minutes), ("--budget-actions", budget_actions)):
         if v is not None and not v > 0:
             raise UserError(f"{name} {v}: a budget must be a positive number")
+    prior = None
+    if prior_runs:
+        from omnibench.analysis.fitting import fit
+        from omnibench.runs.check import checked_runs
+
+        prior = fit(robot, Observations.from_runs(tuple(checked_runs(prior_runs)), robot))
     runs_dir = out / "runs"
     if runs_dir.is_dir() and any(runs_dir.glob("*/run.json")):
         raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
@@ -453,7 +517,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     result = adaptive_loop(robot, targets, files, execute, out / "design", costs=costs, limits=limits,
                            current=current, budget_seconds=60 * budget_minutes if budget_minutes else math.inf,
                            budget_actions=budget_actions if budget_actions is not None else math.inf,
-                           log=log, space=space)
+                           log=log, space=space, prior=prior)
     if energy:
         echo("== energy: " + str(files["energy_trajectories"]))
         results["procedures"]["energy_trajectories"] = run_command(

@@ -39,11 +39,14 @@ from omnibench.errors import UserError
 @design_options
 @click.option("--budget-minutes", type=FINITE, default=None, help="--adaptive: at most this many minutes of robot time.")
 @click.option("--budget-actions", type=int, default=None, help="--adaptive: at most this many operator actions.")
+@click.option("--prior-runs", "prior_runs", multiple=True, type=NonEmptyPath(path_type=Path, file_okay=False),
+              metavar="RUN", help="--adaptive: a run of the robot's previous campaign (repeat the option): its "
+              "fit's values and noise plan the first round; its data are not counted.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
             ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
             plot: bool, as_json: bool, adaptive: bool, target_se: str | None, cost: str | None,
             robot_second: float, floor_length: float, no_current: bool, budget_minutes: float | None,
-            budget_actions: int | None) -> None:
+            budget_actions: int | None, prior_runs: tuple[Path, ...]) -> None:
     """Run the upside-down sweep, forward runs, lateral runs and energy trajectories, then fit,
     validate the energy and diagnose; write OUT/report.md with plots.
 
@@ -77,7 +80,9 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
                                     procedures_dir=procedures_dir, costs=costs,
                                     limits=Limits(floor_length=floor_length), current=not no_current,
                                     budget_minutes=budget_minutes, budget_actions=budget_actions, echo=echo,
-                                    stages=stages, analyse=run_analysis)
+                                    stages=stages, analyse=run_analysis, prior_runs=prior_runs)
+    elif prior_runs:
+        raise UserError("--prior-runs needs --adaptive")
     elif target_se:
         raise UserError("--target-se needs --adaptive")
     else:

@@ -230,3 +230,44 @@ def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan
     assert sum(ran.values()) == sum(u.reps for u in grid)  # and nothing more (the floor is part of it)
     clean = run({}, tmp_path / "clean", 1)
     assert clean.fit is not None and clean.fit.misses_something() == []
+
+
+def test_a_previous_campaign_plans_the_whole_upside_down_part_in_round_one(tmp_path):
+    """With the fit of the robot's previous campaign (`--prior-runs`) the noise and values are known:
+    round 1 runs the floor's forward pair and the plan's whole upside-down part (the sweep topped up
+    at once), where without it round 1 is the diagnostic floor alone (a pilot that measures the noise)."""
+    from omnibench.analysis.fitting import fit
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.simcampaign import simulated_observations
+    from omnibench.bench.adaptive import adaptive_loop
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, C_r=0.03)
+    table = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}
+    previous = fit(robot, simulated_observations(truth, seed=7, procedures=["sweep", "forward", "lateral"]))
+    targets = {"a": (0.002, True), "c": (0.003, True)}
+
+    def sweep_pairs(prior) -> int:
+        def execute(written, r):
+            return Observations.concat([
+                simulated_observations(truth, procedures=[table[p]], files={table[p]: path}, seed=10 * r + n,
+                                       run_prefix=f"r{r}-{n}") for n, (p, path) in enumerate(written)])
+
+        res = adaptive_loop(robot, targets, procedure_files(None), execute, tmp_path / str(prior is not None),
+                            max_rounds=1, prior=prior)
+        assert res.rounds[0].ran[0].startswith("forward/backward")  # the floor's forward pair first
+        return sum(int(x.rsplit(" x", 1)[1]) for x in res.rounds[0].ran if x.startswith("sweep"))
+
+    floor_only = sweep_pairs(None)
+    assert floor_only == 8  # the lab's usable levels on the standard set and one on the weighted set
+    assert sweep_pairs(previous) > floor_only
+
+
+def test_prior_runs_without_adaptive_is_refused_in_one_line(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["campaign", "--port", "sim://", "--out", str(tmp_path / "x"), "--prior-runs", str(tmp_path)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "--prior-runs needs --adaptive" in err and "\n" not in err
