@@ -526,6 +526,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     results["analysis"] = analyse(runs_dir, out, robot_file, echo, stages) if analyse is not None else {}
     results["plots"] = make_plots(results, out, robot)
     summary = design_summary(result, robot, files, space, costs, current)
+    summary["prior_runs"] = [str(p) for p in prior_runs]
     results["design"] = summary
     results["plots"]["design"] = design_plot(summary, out / "plots" / "design_se_vs_time.png")
     results["host_seconds"] = time.monotonic() - t0
@@ -626,6 +627,9 @@ def design_lines(summary: Mapping[str, Any], out: Path) -> list[str]:
              f"{summary['robot_seconds'] / fx['robot_seconds']:.2f}, operator actions "
              f"{summary['operator_actions'] / max(fx['operator_actions'], 1):.2f}" if fx["robot_seconds"] == fx["robot_seconds"]
              else "- the fixed grid: not priced (no fit)", ""]
+    if summary.get("prior_runs"):
+        lines.append(f"- planned from the previous campaign's values and noise (`--prior-runs`, its data not counted): "
+                     + ", ".join(f"`{p}`" for p in summary["prior_runs"]))
     for p, why in summary["refused"].items():
         lines.append(f"- refused target {p}: {why}")
     lines += ["", "| parameter | target SE | SE reached |", "|---|---|---|"]

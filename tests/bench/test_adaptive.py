@@ -271,3 +271,19 @@ def test_prior_runs_without_adaptive_is_refused_in_one_line(capsys, tmp_path):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip()
     assert "--prior-runs needs --adaptive" in err and "\n" not in err
+
+
+@pytest.mark.slow
+def test_an_adaptive_campaign_from_a_previous_one_over_the_serial_path_says_so(capsys, tmp_path):
+    procs = str(Path(__file__).parent / "procedures" / "campaign")
+    main(["campaign", "--port", "sim://?seed=4", "--out", str(tmp_path / "before"), "--procedures", procs,
+          "--analysis", "none", "--json"])
+    capsys.readouterr()
+    out = tmp_path / "after"
+    main(["campaign", "--adaptive", "--port", "sim://?seed=5", "--out", str(out), "--target-se", "a=3%,b=2%",
+          "--procedures", procs, "--analysis", "none", "--prior-runs", str(tmp_path / "before" / "runs"), "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert res["design"]["met"] and res["design"]["prior_runs"] == [str(tmp_path / "before" / "runs")]
+    log = [json.loads(x) for x in (out / "design.jsonl").read_text().splitlines()]
+    assert "previous campaign" in log[0]["why"]
+    assert "planned from the previous campaign's values and noise" in (out / "report.md").read_text()
