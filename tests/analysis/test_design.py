@@ -153,7 +153,7 @@ def test_only_a_group_with_enough_degrees_of_freedom_lends_its_noise_to_another(
 
 def test_a_floor_level_the_model_predicts_stuck_is_priced_at_nothing_and_not_planned():
     # the lab's ±0.06 sweep level: at the robot file's friction the wheel does not turn faster than
-    # the fit's 3 sign widths, so it informs nothing; every other floor level is planned
+    # the fit's 0.3 rad/s (fitting.MIN_SWEEP_SPEED), so it informs nothing; every other floor level is planned
     from omnibench.analysis.design.files import diagnostic_floor
 
     robot = default_robot()

@@ -107,3 +107,67 @@ def test_each_large_groups_noise_weights_the_fit(robot, campaign, campaign_fit, 
         assert campaign_fit.se[p] < 0.97 * stated.se[p], (p, campaign_fit.se[p], stated.se[p])
     for p in CAMPAIGN_PARAMS:
         assert abs(campaign_fit.values[p] - stated.values[p]) < 3 * stated.se[p]
+
+
+@pytest.mark.parametrize("sign_width_phi, fits", [(None, True), (0.1, False)])
+def test_lateral_runs_of_a_world_whose_contacts_stick_fit_to_their_noise(sign_width_phi, fits, monkeypatch):
+    """The lab's lateral runs simulated by the independent physics (omnibench/worlds/independent.py:
+    dry friction 100 x sharper than the model's, another integrator), a clean world: no group
+    misfits and the roller terms come back within 3 % (their SE is about 0.45 %). At a 60 deg
+    heading two wheels turn at only 0.26-0.4 rad/s; with the former wheel sign width of 0.1 rad/s
+    their dry friction was 5-14 % short of Coulomb's, the wheel speeds misfit by 26-50 sigma and
+    the roller terms came back 11-30 % off (docs/robot-file.md): the second case keeps that as the
+    check that this test can fail. (On this draw b_r is 1.5 % low, 3.6 SE, at every width down to
+    0.001 rad/s, and within 1 SE on the next draw: a smaller difference between the two physics
+    that the width does not explain, hence the bound in per cent, not in SE.)"""
+    from omnibench.model import default_robot
+
+    from omnibench.analysis import fitting
+
+    robot = default_robot()
+    if sign_width_phi is not None:  # the fit as it was: that width, and every wheel speed used
+        robot = robot.replace(sign_width_phi=sign_width_phi)
+        monkeypatch.setattr(fitting, "MIN_GROUND_SPEED_WIDTHS", 0.0)
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, a_r=2.5, b_r=0.8, c_r=0.02, C_r=0.03)
+    obs = simulated_observations(truth, procedures=["lateral"], seed=7000, generator="independent")
+    # a, b, c, C_r at the world's values: the lateral runs' own parameters are what is tested
+    res = fit(truth.replace(a_r=2.0, b_r=1.0, c_r=0.01), obs, ["a_r", "b_r", "c_r"])
+    assert (res.misses_something() == []) == fits, res.misses_something()
+    off = {p: abs(res.values[p] / getattr(truth, p) - 1.0) for p in ("a_r", "b_r", "c_r")}
+    assert (max(off.values()) < 0.03) == fits, off
+
+
+def test_wheels_that_stick_in_a_lateral_run_are_left_out_of_the_fit_and_of_the_plan():
+    """At a 45 deg heading two wheels stand still (their rollers take the motion): a real wheel
+    sticks, the model's smoothed friction lets it creep. The fit leaves wheel speeds below 10 sign
+    widths out and says so; the planner counts no information from them (design/information.py)."""
+    import tempfile
+    from pathlib import Path
+
+    from omnibench.analysis.design.files import space_from_files, write_procedures
+    from omnibench.analysis.design.information import candidate_information
+    from omnibench.analysis.design.planner import Unit
+    from omnibench.analysis.fitting import MIN_GROUND_SPEED_WIDTHS
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    truth = robot.replace(a=0.02, b=0.45, c=0.015, a_r=2.5, b_r=0.8, c_r=0.02, C_r=0.03)
+    files = procedure_files(None)
+    space = space_from_files(robot, files)
+    pick = lambda deg: next(c for c in space.candidates if c.procedure == "lateral" and c.world.payload == 0  # noqa: E731
+                            and abs(math.degrees(c.heading) - deg) < 1e-6 and c.speed == 0.3 and c.duration == 1.5)
+    with tempfile.TemporaryDirectory() as tmp:
+        (_, path), = write_procedures([Unit(pick(45), 1, 0)], files, Path(tmp), robot, seed=1)
+        obs = simulated_observations(truth, procedures=["lateral"], files={"lateral": path}, seed=5,
+                                     generator="independent")
+    res = fit(truth, obs, ["a_r"])
+    w = res.residuals[(res.residuals["procedure"] == "lateral") & (res.residuals["signal"] == "w")]
+    slow = w["measured"].abs() < MIN_GROUND_SPEED_WIDTHS * robot.sign_width_phi
+    assert slow.sum() == 4 and w["wheel"][slow].isin([1, 4]).all()  # wheels 1 and 4, both ways
+    assert not w["used"][slow].any() and w["used"][~slow].all()
+    assert any("4 ground-run wheel speed(s)" in n for n in res.notes), res.notes
+    assert res.misses_something() == []
+    # the planner: the pair at 45 deg informs a_r only through the turning wheels and the tape
+    info = candidate_information(truth, [pick(45)], ["a_r", "b_r"])
+    assert info.usable[0] and np.all(np.isfinite(info.info[0]))

@@ -304,9 +304,9 @@ def _numpy_reference(robot, t_cmd, u_cmd, t_end, dt=1e-3):
 def test_kernel_matches_plain_numpy_model_while_spinning():
     """Fast spin (over 2 rad of heading) then a curve: pose, speeds and energy agree with a
     plain numpy RK4 of the same equations to ~1e-12 (both are the same arithmetic up to rounding).
-    The roller sign's width is set where the kernel's step is the reference's 1 ms (the robot
-    file's narrow width makes the kernel step finer, which is not what this test compares)."""
-    robot = default_robot().replace(sign_width_sigma=0.01)
+    The signs' widths are set where the kernel's step is the reference's 1 ms (the robot file's
+    narrow widths make the kernel step finer, which is not what this test compares)."""
+    robot = default_robot().replace(sign_width_sigma=0.01, sign_width_phi=0.1)
     t_cmd = [0.0, 0.8, 1.6]
     u_cmd = [[1.0, -1.0, 1.0, -1.0], [0.8, 0.2, 0.8, 0.2], [-0.3, 0.6, 0.6, -0.3]]
     ref = _numpy_reference(robot, t_cmd, u_cmd, 2.5)

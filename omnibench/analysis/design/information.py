@@ -23,7 +23,8 @@ import numpy as np
 import pandas as pd
 
 from omnibench.analysis.design.space import Candidate
-from omnibench.analysis.fitting import MIN_SWEEP_SPEED_WIDTHS, REWEIGHT_MIN_DOF, FitResult, _Problem, param_scale
+from omnibench.analysis.fitting import (MIN_SWEEP_SPEED, REWEIGHT_MIN_DOF, FitResult, _Problem, creeping_ground_speeds,
+                                       param_scale)
 from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
 )
@@ -135,9 +136,9 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
         ix = np.asarray(list(idx))
         if t.loc[ix[0], "procedure"] == "sweep":
             sp = np.abs(f0[ix][sweep_speed[ix]])
-            if sp.size and sp.min() < MIN_SWEEP_SPEED_WIDTHS * robot.sign_width_phi:
+            if sp.size and sp.min() < MIN_SWEEP_SPEED:
                 slow[ix] = True
-    used &= ~slow
+    used &= ~slow & ~creeping_ground_speeds(t, f0, robot)  # a wheel predicted stuck on the ground: the fit leaves it out
     s2 = np.ones(len(t))
     groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
     for g, v in expected_s2(group_s2 or {}, group_dof).items():
