@@ -4,12 +4,14 @@ fixed grid on simulated worlds.
     nice .venv/bin/python benchmarks/design.py [--seeds 5] [--effect driver_deadband] [--no-effect-world]
     nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --rounds   # each round: what ran, SE / target, SE / planned
     nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --prior    # from the robot's previous campaign
+    nice .venv/bin/python benchmarks/design.py --seeds 10 --no-effect-world --generator independent  # other physics
 
 Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files) is simulated
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
 a, b, c, a_r, b_r, c_r, C_r ("the same target SEs"). The adaptive loop (omnibench.bench.adaptive,
 the same code `campaign --adaptive` runs) then plans, simulates the planned procedure files
-(`simcampaign.simulated_observations` with those files: the model with the simulated board's sensor noise),
+(`simcampaign.simulated_observations` with those files: the model, or with `--generator independent`
+the physics written for testing only, with the simulated board's sensor noise),
 fits and re-plans until the targets are met. Both are priced with the same cost model: robot
 seconds of the steps (sweep holds at min_hold + window), operator actions (flips, wheel swaps,
 payload changes, tape measurements) including the return to the rest state.
@@ -44,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--prior", action="store_true",
                     help="start each adaptive campaign from the robot's previous one: that seed's fixed-grid fit "
                          "(its values and noise; `campaign --adaptive --prior-runs`)")
+    ap.add_argument("--generator", choices=("model", "independent"), default="model",
+                    help="who simulates the worlds: the fit's own simulator, or the physics written for testing "
+                         "only (omnibench/worlds/independent.py: exact stick-slip, another integrator)")
     ap.add_argument("--rounds", action="store_true",
                     help="also print each adaptive round: what ran, robot s, SE / target after it")
     args = ap.parse_args(argv)
@@ -79,12 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     for wname, weff in worlds:
         for seed in seeds:
             obs = simulated_observations(truth, world_effects=weff, seed=7000 + seed,
-                                         procedures=["sweep", "forward", "lateral"])
+                                         procedures=["sweep", "forward", "lateral"], generator=args.generator)
             fixed_obs[(wname, seed)] = obs
             fixed_fits[(wname, seed)] = fit(robot, obs)
     rel = {p: statistics.median(fixed_fits[("clean", s)].se[p] / abs(fixed_fits[("clean", s)].values[p])
                                 for s in seeds) for p in TARGETS}
     targets = {p: (rel[p], True) for p in TARGETS}
+    print(f"worlds simulated by: {args.generator}")
     print(f"fixed grid: {fixed_s:.0f} s of robot time, {fixed_a} operator actions (cost model of docs/design.md)")
     print("targets (median relative SE of the fixed grid over the clean seeds): "
           + ", ".join(f"{p}={100 * v:.3g}%" for p, v in rel.items()))
@@ -100,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
                 for n, (proc, path) in enumerate(written):
                     t = TABLE[proc]
                     out.append(simulated_observations(truth, world_effects=_weff, procedures=[t], files={t: path},
-                                                      seed=100000 * (_seed + 1) + 100 * r + n, run_prefix=f"r{r}-{n}"))
+                                                      seed=100000 * (_seed + 1) + 100 * r + n, run_prefix=f"r{r}-{n}",
+                                                      generator=args.generator))
                 return Observations.concat(out)
 
             with tempfile.TemporaryDirectory() as tmp:
