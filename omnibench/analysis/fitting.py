@@ -64,8 +64,8 @@ RANK_TOL = 1e-6
 #: leaves a singular value below this fraction of the largest.
 CONFOUND_TOL = 1e-3
 #: Sweep steady states slower than this (rad/s) are left out of the fit: wheel stuck, or creeping
-#: in a stiction/deadband region the paper's model does not describe; about 1.5 x the speed one
-#: encoder count over the steady-state window resolves. (It was 3 x the ground's sign width
+#: in a stiction/deadband region the paper's model does not describe; about 1.5 x one encoder
+#: count per 30 ms sample of the 2019 logs (0.21 rad/s). (It was 3 x the ground's sign width
 #: `sign_width_phi` while that was 0.1 rad/s; the sweep runs with an exact sign, so the width has
 #: no say upside down.)
 MIN_SWEEP_SPEED = 0.3
