@@ -18,7 +18,8 @@ Method. Every observation is predicted through the simulator (`Predictor`), so a
 term takes part. The weighted residuals r_k = (y_k - f_k(theta)) / sigma_k are minimised with
 scipy's trust-region least squares; the Jacobian comes from forward differences, all perturbed
 parameter sets simulated in one `simulate_batch` call. sigma_k is the observation's own
-standard error (encoder quantisation through the speed estimator, current noise over the
+standard error (encoder rounding through the speed estimator at that speed and window,
+omnibench.analysis.quantisation; current noise over the
 averaged samples, the operator's tape noise); where a run does not give one (the 2019 sweep),
 each (procedure, signal) group gets the RMS of its residuals from a first pass.
 
@@ -796,12 +797,17 @@ def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:
     df = residuals[residuals["used"] & np.isfinite(residuals["residual"])]
     for (proc, sig), g in df.groupby(["procedure", "signal"], sort=False):
         z = np.where(np.isfinite(g["normalised"]), g["normalised"], g["residual"]).astype(float)
-        g = g.assign(_z=z - z.mean(), _F=g["F_N"].round(6).fillna(-1.0), _d=np.sign(g["speed"].fillna(0.0)))
+        # a speed's own residual is ordered by the model's speed: ordered by the measured one, the
+        # repeats of a level would line up by their own noise and look alike
+        speed = g["speed"].to_numpy(float)
+        own = np.isclose(speed, g["measured"].to_numpy(float), rtol=0.0, atol=0.0) & np.isfinite(g["predicted"].to_numpy(float))
+        g = g.assign(_z=z - z.mean(), _F=g["F_N"].round(6).fillna(-1.0), _d=np.sign(g["speed"].fillna(0.0)),
+                     _key=np.where(own, g["predicted"].to_numpy(float), speed))
         num = den = 0.0
         pairs = 0
         for _, h in g.groupby(["wheel", "_F", "_d"], sort=False):
-            key = "speed" if np.isfinite(h["speed"].to_numpy(float)).all() else "step"  # displacements: run order
-            v = h.sort_values(key)["_z"].to_numpy()
+            key = ["_key", "step"] if np.isfinite(h["_key"].to_numpy(float)).all() else ["step"]  # displacements: run order
+            v = h.sort_values(key, kind="stable")["_z"].to_numpy()
             if len(v) < 3:
                 continue
             num += float(np.sum(v[1:] * v[:-1]))

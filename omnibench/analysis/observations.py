@@ -43,6 +43,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.errors import UserError
 from omnibench.model.context import GRAVITY
 
@@ -398,7 +399,7 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
             sel = (t >= t_end - STEADY_AVERAGE) & (t <= t_end + 1e-9)
             if sel.sum() >= 4:
                 tr = _trace(s[sel], None, cpr, relative=False)
-                _, w_se = slope_fit(tr["t"].to_numpy(), tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(), floor=floor)
+                _, w_se = encoder_slope_fit(tr["t"].to_numpy(), tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(), cpr)
                 n = int(sel.sum())
                 cur = tr[[f"i{j}" for j in range(1, 5)]].to_numpy(dtype=float)
                 if np.isfinite(cur).all() and n > 1:
@@ -448,7 +449,6 @@ def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: fl
     from omnibench.model.geometry import inverse_kinematics
 
     R = inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
-    floor = quantisation_se(cpr)
     row: dict[str, Any] = {"run": rid, "step": int(k), **{f"u{j + 1}": float(u[j]) for j in range(4)},
                            "duration": duration, "t_total": t_total, "payload": payload, "heading": heading,
                            "measured_forward": measured_forward, "measured_left": measured_left,
@@ -461,8 +461,8 @@ def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: fl
     if trace is not None and len(trace) >= 4:
         sel = ((trace["t"] >= a) & (trace["t"] <= b + 1e-9)).to_numpy()
         if sel.sum() >= 4:
-            w, w_se = slope_fit(trace["t"].to_numpy()[sel],
-                                trace[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel], floor=floor)
+            w, w_se = encoder_slope_fit(trace["t"].to_numpy()[sel],
+                                        trace[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel], cpr)
         if not np.isfinite(dphi).all():
             dphi = trace[[f"phi{j}" for j in range(1, 5)]].to_numpy()[-1]
     kin = np.linalg.pinv(R) @ dphi

@@ -19,8 +19,9 @@ import pandas as pd
 
 from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE, ENERGY_COLUMNS, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, TRACE_COLUMNS,
-    Observations, quantisation_se, slope_fit, timed_row,
+    Observations, timed_row,
 )
+from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate_batch
@@ -117,12 +118,11 @@ def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, fl
             U = np.array([[s.schedule[0][1]] for s in steps])
             res = simulate(robot, scen, [0.0], U, SWEEP_HOLD, dt=PHYSICS_DT, record_every=every)
             rows = []
-            floor = quantisation_se(cpr)
             for b, s in enumerate(steps):
                 tr = _sensors(rng, res, b, cpr, current, [0.0], U[b])
                 sel = tr["t"].to_numpy() >= SWEEP_HOLD - STEADY_AVERAGE - 1e-9
-                w, w_se = slope_fit(tr["t"].to_numpy()[sel], tr[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel],
-                                    floor=floor)
+                w, w_se = encoder_slope_fit(tr["t"].to_numpy()[sel], tr[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel],
+                                            cpr)
                 n = int(sel.sum())
                 masses = s.world.wheel_mass or robot.wheel_mass
                 for j in range(4):

@@ -9,14 +9,16 @@ where s2_g is the noise scale the fit found for that observation group (chi^2/do
 correlation inflation), so the predicted SE is the one the fit will report.
 
 Expected noise of an entry (before any data of its group, s2_g = 1): steady speed and drive
-speeds from the straight-line fit of encoder angles with the quantisation floor (the
-estimator's own floor), motor current 0.01 A per sample averaged, tape 2 mm.
+speeds as the fit will state them, the rounding error of a straight line through encoder
+angles at the predicted speed over the step's window (omnibench.analysis.quantisation), motor
+current 0.01 A per sample averaged, tape 2 mm.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -29,6 +31,7 @@ from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
 )
 from omnibench.analysis.predictor import Predictor
+from omnibench.analysis.quantisation import quantised_slope
 from omnibench.model.context import GRAVITY
 
 TELEMETRY_HZ = 100.0
@@ -39,10 +42,28 @@ PRIOR_SD = 1.0
 
 def slope_se(duration: float, floor: float, rate: float = TELEMETRY_HZ) -> float:
     """SE (rad/s) of a speed from a straight line fitted to `duration` s of angles at `rate` Hz
-    whose scatter is the quantisation floor (rad): floor / sqrt(sum (t - tbar)^2)."""
+    whose scatter is the quantisation floor (rad): floor / sqrt(sum (t - tbar)^2). The
+    placeholder before the speed is predicted (`expected_speed_se` replaces it)."""
     n = max(int(round(duration * rate)), 3)
     t = np.arange(n) / rate
     return floor / math.sqrt(float(np.sum((t - t.mean()) ** 2)))
+
+
+SPEED_ROUNDING = 1e-4  # rad/s: predicted speeds are rounded to this for the cache (the band is ~1e-3)
+
+
+@lru_cache(maxsize=4096)
+def _speed_se(omega: float, duration: float, counts_per_rev: float, rate: float) -> float:
+    n = max(int(round(duration * rate)), 3)
+    v, _ = quantised_slope(np.arange(n) / rate, omega, counts_per_rev)
+    return math.sqrt(v)
+
+
+def expected_speed_se(omega: float, duration: float, counts_per_rev: float, rate: float = TELEMETRY_HZ) -> float:
+    """SE (rad/s) the fit will state for a steady speed omega (rad/s) read over `duration` s of
+    encoder angles at `rate` Hz: the rounding error of the straight-line fit at that speed."""
+    w = round(abs(float(omega)) / SPEED_ROUNDING) * SPEED_ROUNDING
+    return _speed_se(w, round(float(duration), 6), float(counts_per_rev), float(rate))
 
 
 def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
@@ -84,8 +105,8 @@ def expected_s2(group_s2: Mapping[str, float], group_dof: Mapping[str, float] | 
     """Noise scale (chi^2/dof) each group is expected to show: the fit's where the group has data;
     before that, the largest one the fit found for a group of the same estimator (the encoder
     speeds of the sweep and of the ground runs come from the same straight-line fit of encoder
-    angles, whose stated quantisation floor over-states a steadily turning encoder's error about
-    3-6 times on the simulated robot); 1 (the stated noise) when the estimator has no data yet.
+    angles, whose error is stated from its rounding at each speed: about 1 on the simulated robot,
+    more on a real one with speed ripple); 1 (the stated noise) when the estimator has no data yet.
     With `group_dof`, only a group with at least REWEIGHT_MIN_DOF degrees of freedom lends its
     figure to another (the fit's own rule for weighting a group by its noise): the chi^2/dof of
     one forward pair (two tape distances, one degree of freedom after C_r) is a chi^2_1 draw,
@@ -129,6 +150,8 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     f0 = pred.predict([robot])[0]
     t = pred.table
     sweep_speed = (t["procedure"] == "sweep").to_numpy() & (t["signal"] == "omega").to_numpy()
+    pred.sigma = pred.sigma.copy()
+    _speed_sigma(pred, obs, f0, robot.counts_per_rev)
     used = np.isfinite(f0) & np.isfinite(pred.sigma) & (pred.sigma > 0)
     # a sweep level too slow for the fit (stuck, inside the regularised sign) informs nothing
     slow = np.zeros(len(t), dtype=bool)
@@ -157,6 +180,24 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
             usable[k] = True
             info[k] = Jw[m].T @ Jw[m]
     return CandidateInformation(names, scale, info, usable)
+
+
+def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_rev: float) -> None:
+    """Each encoder speed's stated SE at its predicted speed and window (in place on pred.sigma)."""
+    t = pred.table
+    sig = t["signal"].to_numpy()
+    proc = t["procedure"].to_numpy()
+    window = {}
+    for name in ("forward", "lateral"):
+        tab = obs.table(name)
+        for r in tab.itertuples(index=False):
+            window[(r.run, int(r.step))] = float(r.w_t1) - float(r.w_t0)
+    for k in np.flatnonzero(((proc == "sweep") & (sig == "omega")) | (sig == "w")):
+        if not math.isfinite(f0[k]):
+            continue
+        dur = STEADY_AVERAGE if proc[k] == "sweep" else window.get((t.at[k, "run"], int(t.at[k, "step"])))
+        if dur:
+            pred.sigma[k] = expected_speed_se(f0[k], dur, counts_per_rev)
 
 
 def _value(robot: Any, name: str) -> float:

@@ -52,8 +52,8 @@ from omnibench.errors import UserError
 MARGIN = 0.9
 REPS = (1, 2, 4, 8)
 #: At most this many repetitions of one step per plan: replicated extremes are what an optimal
-#: design for a perfect model asks for, but the fit reads many identical levels whose residuals
-#: agree (any small model error) as structure and widens the intervals (fitting.residual_structure);
+#: design for a perfect model asks for, but a level's repeats share its model error (any small
+#: one), which the fit reads as structure and widens the intervals (fitting.residual_structure);
 #: spreading over neighbouring levels keeps the prediction honest and diagnosis informed.
 MAX_REPS = 8
 #: A parameter whose weight in an invisible direction exceeds this is not separable (a small weight

@@ -32,31 +32,10 @@ import math
 import numpy as np
 import pandas as pd
 
-FOURIER_TERMS = 24  # terms damped explicitly; the tail (variance share 1/(2 pi^2 M) ~ 2 %) stays undamped
+from omnibench.analysis.quantisation import sawtooth_cov
+
 ROW_CHUNK = 512  # rows of the angle covariance built at once (memory: chunk x samples doubles)
 MIN_RHO = 1e-4  # relative uncertainty of predicted angle differences never taken below this
-
-
-def sawtooth_cov(d: np.ndarray, sigma: np.ndarray | float = 0.0) -> np.ndarray:
-    """Covariance (count^2) of the rounding errors of two angles d counts apart, uniform
-    mounting phase, with the difference known to a Gaussian uncertainty sigma (counts)."""
-    d = np.asarray(d, dtype=float)
-    f = np.mod(d, 1.0)
-    out = 1.0 / 12.0 - 0.5 * f * (1.0 - f)
-    sigma = np.broadcast_to(np.asarray(sigma, dtype=float), d.shape)
-    if np.any(sigma > 0):
-        # cos(2 pi n d) by the angle-addition recurrence, exp(-2 pi^2 n^2 sigma^2) = q^(n^2) by
-        # q^((n+1)^2) = q^(n^2) q^(2n+1): two transcendental calls per element, not 2M
-        c1, s1 = np.cos(2.0 * math.pi * d), np.sin(2.0 * math.pi * d)
-        cn, sn = c1.copy(), s1.copy()
-        q = np.exp(-2.0 * math.pi ** 2 * sigma ** 2)
-        q2 = q * q
-        pn, rn = q.copy(), q * q2  # q^(n^2), q^(2n+1) at n = 1
-        for n in range(1, FOURIER_TERMS + 1):
-            out = out - cn * (1.0 - pn) / (2.0 * math.pi ** 2 * n * n)
-            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
-            pn, rn = pn * rn, rn * q2
-    return out
 
 
 def _sample_times(obs, run: str) -> np.ndarray | None:

@@ -388,10 +388,11 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
 
 
 def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, float]]:
-    """The start point, then one per alternative value of each `effect.restarts` parameter."""
+    """The start point, then every combination of it with the alternative values of the
+    effect's `restarts` parameters (a valley between two parameters is left only jointly)."""
     out = [dict(start)]
     for p, values in effect.restarts.items():
-        out += [{**start, p: float(v)} for v in values if v != start.get(p)]
+        out += [{**o, p: float(v)} for o in list(out) for v in values if v != start.get(p)]
     return out
 
 
