@@ -177,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
         for r in rows:
             da = diagnose(robot, r["obs"])
             df = diagnose(robot, fixed_obs[(r["world"], r["seed"])])
+            named = [", ".join(c.name for c in d.selected) or "nothing" for d in (da, df)]
+            print(f"  {r['world']} seed {r['seed']}: diagnose adds {named[0]} from the adaptive data, "
+                  f"{named[1]} from the fixed grid's", flush=True)
             if r["world"] == "clean":  # a false addition: an effect named on a world without one
                 n_clean += 1
                 false_a += bool(da.selected)
