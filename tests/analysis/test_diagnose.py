@@ -228,3 +228,24 @@ def test_the_report_says_why_a_structure_score_can_rise_with_an_accepted_effect(
     assert "structure 262 -> 471 (each score is measured against its own fit's residual scale" in rose.evidence_line()
     assert fell.evidence_line().endswith("structure 471 -> 262")
 
+
+
+def test_a_candidate_is_judged_at_the_weights_its_own_fit_settles_to(omnibot):
+    """A deadband removes the sweep currents' large misfit, so its fit must re-weight that group
+    by its new, many times smaller scale before it is judged. On the lab's whole grid (sweep,
+    forward and lateral runs) on the independent physics, a candidate fit stopped after two
+    weighted passes gave u_0 = 0.014 +- 0.007 (truth 0.03), one more pass moved it by 1.9 SE,
+    and diagnose rejected the deadband as explaining no structure; settled, u_0 = 0.0302 +- 0.0001."""
+    from omnibench.analysis.diagnosis import engine
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    obs = campaign(omnibot, CampaignSpec(("sweep", "forward", "lateral")), EFFECTS["driver_deadband"].world(),
+                   seed=11)
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    base = engine.fit_model(problem, start, free, max_nfev=60)
+    cand = engine.fit_candidate(problem, base, EFFECTS["driver_deadband"], {"u_0": 0.01})
+    u, se = cand.values["driver_deadband.u_0"], cand.se["driver_deadband.u_0"]
+    assert abs(u - 0.03) <= 3 * se and se < 1e-3
+    again = engine.fit_model(problem, cand.robot, cand.free, max_nfev=15, passes=1, scale=cand.scale)
+    assert abs(again.values["driver_deadband.u_0"] - u) < 0.2 * se

@@ -296,7 +296,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     problem = engine.Problem(obs, procs)
     if not problem.used.any():
         raise UserError("no usable measurements in these runs")
-    base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV, passes=3)
+    base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV)
     fold = engine.cv_folds(problem, folds, seed)
     base_struct, n_tests = _structure_of(problem, base)
     base_sig = structure.significant(base_struct, n_tests)
@@ -544,7 +544,7 @@ def _judge(c: Candidate, effects: Sequence[Effect], p_needed: float, before: tup
     if not (c.p < p_needed):
         c.reason = f"not significant: LR = {c.lr:.1f} for {c.q} parameter(s), p = {c.p:.1e} (needs < {p_needed:.1e})"
     elif zero:
-        c.reason = (f"its fitted size is indistinguishable from zero ("
+        c.reason = ("its fitted size is indistinguishable from zero ("
                     + ", ".join(f"{k} = {v:.3g} ± {c.se.get(k, float('nan')):.2g}" for k, v in own(zero[0]).items())
                     + "): the likelihood gain comes from refitting the other parameters, not from the effect")
     elif bound:
@@ -605,7 +605,7 @@ def _polished(cands: list[Candidate], problem: engine.Problem, say: Callable[[st
     merely continue), then check the bounds on the polished values: [] if one sits on its bound."""
     c0 = cands[0]
     say(f"round {rnd}: final fit with {' and '.join(c.name for c in cands)}")
-    pol = engine.fit_model(problem, c0.fit.robot, c0.fit.free, max_nfev=POLISH_NFEV, passes=3)
+    pol = engine.fit_model(problem, c0.fit.robot, c0.fit.free, max_nfev=POLISH_NFEV)
     fit = pol if pol.deviance <= c0.fit.deviance else c0.fit
     for c in cands:
         bound = _at_bound(_spec(c.name), {p: fit.values[p] for p in c.values})

@@ -11,7 +11,6 @@ import numpy as np
 
 from omnibench.analysis.diagnosis import structure
 from omnibench.analysis.diagnosis.core import Diagnosis
-from omnibench.effects.library import EFFECTS
 from omnibench.errors import UserError
 
 
