@@ -235,12 +235,14 @@ def test_a_candidate_is_judged_at_the_weights_its_own_fit_settles_to(omnibot):
     by its new, many times smaller scale before it is judged. On the lab's whole grid (sweep,
     forward and lateral runs) on the independent physics, a candidate fit stopped after two
     weighted passes gave u_0 = 0.014 +- 0.007 (truth 0.03), one more pass moved it by 1.9 SE,
-    and diagnose rejected the deadband as explaining no structure; settled, u_0 = 0.0302 +- 0.0001."""
+    and diagnose rejected the deadband as explaining no structure; settled, u_0 = 0.0302 +- 0.0001.
+    The sweep and forward runs alone show the same (two passes: 0.017 +- 0.0065, one more moves it
+    by 1 SE; settled 0.03015 +- 0.0001) in a third of the time (the lateral runs' ground simulations
+    are the dear part)."""
     from omnibench.analysis.diagnosis import engine
     from omnibench.analysis.diagnosis.core import _base_free
 
-    obs = campaign(omnibot, CampaignSpec(("sweep", "forward", "lateral")), EFFECTS["driver_deadband"].world(),
-                   seed=11)
+    obs = campaign(omnibot, CampaignSpec(("sweep", "forward")), EFFECTS["driver_deadband"].world(), seed=11)
     problem = engine.Problem(obs, obs.procedures())
     start, free, _ = _base_free(omnibot, obs, obs.procedures())
     base = engine.fit_model(problem, start, free, max_nfev=60)
