@@ -127,6 +127,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"{sum(cover):>3}/{len(cover):<2} {row['host']:>7.0f}  {fixed_met}", flush=True)
             if not res.met:
                 print(f"    stopped: {res.stop_reason}", flush=True)
+            if f is not None and not weff:  # where an interval misses: (fitted - truth) / SE, adaptive and fixed
+                z = lambda fit: ", ".join(f"{p} {(fit.values[p] - getattr(truth, p)) / fit.se[p]:+.1f}"  # noqa: E731
+                                          for p in TARGETS if math.isfinite(fit.se.get(p, math.nan)))
+                print(f"    (fitted - truth) / SE: adaptive {z(f)}; fixed grid {z(ff)}", flush=True)
             if args.rounds:
                 for rd in res.rounds:
                     tgt = {p: rel[p] * abs(f.values[p]) for p in TARGETS if f is not None}
