@@ -1,7 +1,7 @@
 """Benchmark of the fit: time of a full simulated-campaign fit and Monte-Carlo calibration of
 the reported standard errors.
 
-    .venv/bin/python benchmarks/fit.py [--seeds N] [--sweep-seeds M]
+    .venv/bin/python benchmarks/fit.py [--seeds N] [--sweep-seeds M] [--generator independent]
 
 Prints (1) the wall time of one fit of a whole simulated campaign (III.i sweep with motor
 currents, III.ii forward runs, III.iii lateral runs; 9 parameters; target <= 10 s), and
@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 
-def monte_carlo(robot, truth, seeds, procedures, label):
+def monte_carlo(robot, truth, seeds, procedures, label, generator="model"):
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.simcampaign import simulated_observations
 
@@ -28,7 +28,7 @@ def monte_carlo(robot, truth, seeds, procedures, label):
     cover: dict[str, list[bool]] = {}
     times = []
     for seed in seeds:
-        obs = simulated_observations(truth, seed=seed, procedures=procedures)
+        obs = simulated_observations(truth, seed=seed, procedures=procedures, generator=generator)
         t0 = time.perf_counter()
         res = fit(robot, obs, procedures=[p for p in procedures if p != "energy"])
         times.append(time.perf_counter() - t0)
@@ -55,6 +55,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10, help="Monte-Carlo seeds of the whole campaign")
     ap.add_argument("--sweep-seeds", type=int, default=30, help="Monte-Carlo seeds of the sweep alone")
+    ap.add_argument("--generator", choices=("model", "independent"), default="model",
+                    help="who simulates the Monte-Carlo worlds: the fit's own simulator or "
+                         "omnibench/worlds/independent.py (other physics: the truth is then the nominal values)")
     args = ap.parse_args()
 
     from omnibench.analysis.fitting import fit
@@ -72,10 +75,11 @@ def main() -> None:
     print(f"full simulated-campaign fit: {dt:.2f} s for {len(res.fitted)} parameters, "
           f"{int(res.residuals['used'].sum())} observations, {res.nfev} simulated parameter sets "
           f"(target <= 10 s)")
-    monte_carlo(robot, truth, range(1000, 1000 + args.sweep_seeds), ["sweep"], "III.i sweep alone (with currents)")
+    monte_carlo(robot, truth, range(1000, 1000 + args.sweep_seeds), ["sweep"], "III.i sweep alone (with currents)",
+                args.generator)
     if args.seeds:
         monte_carlo(robot, truth, range(2000, 2000 + args.seeds), ["sweep", "forward", "lateral"],
-                    "whole campaign (sweep, forward, lateral)")
+                    "whole campaign (sweep, forward, lateral)", args.generator)
 
 
 if __name__ == "__main__":
