@@ -95,6 +95,24 @@ def test_safety_limits_bound_every_candidate_and_every_written_file(tmp_path):
         load_plan(path, robot, expect=proc)  # the runner's own checks (max_duty, stall current)
 
 
+def test_lateral_speeds_stay_within_the_span_of_the_labs_file(tmp_path):
+    """The planner's lateral runs go no faster and no slower than the lab's file: on the independent
+    physics a plan's 0.2 m/s pair (the file's 0.3) put the roller terms 3-4 SE off on every noise
+    draw (docs/design.md). A file that spans more speeds opens the menu's speeds in between."""
+    robot = default_robot()
+    files = dict(procedure_files(None))
+    shipped = {c.speed for c in space_from_files(robot, files).candidates if c.procedure == "lateral"}
+    assert shipped == {0.3}
+    text = files["lateral_runs"].read_text(encoding="utf-8")
+    assert text.count('speed = "0.3 m/s"') == 3
+    text = text.replace('speed = "0.3 m/s"', 'speed = "0.2 m/s"', 1)
+    head, _, tail = text.rpartition('speed = "0.3 m/s"')
+    (tmp_path / "lateral.toml").write_text(head + 'speed = "0.45 m/s"' + tail, encoding="utf-8")
+    files["lateral_runs"] = tmp_path / "lateral.toml"
+    wide = {c.speed for c in space_from_files(robot, files).candidates if c.procedure == "lateral"}
+    assert min(wide) == 0.2 and 0.3 in wide and max(wide) <= 0.45
+
+
 def test_target_syntax_errors_are_one_line_user_errors():
     robot = default_robot()
     assert parse_targets("a=2%, b=0.01", robot) == {"a": (0.02, True), "b": (0.01, False)}
