@@ -82,11 +82,13 @@ def test_fast_clock_on_pty_loses_nothing(tmp_path) -> None:
 def test_caller_silent_for_a_watchdog_timeout_lets_the_board_stop_the_motors(served) -> None:
     """No thread feeds the watchdog: a caller that stops calling the client is a hung host."""
     with Board.open(served.path) as b:
-        b.configure(watchdog_s=0.3)
+        # 1 s, not less: on a loaded CI machine reading a fresh status file took longer than a 0.3 s
+        # watchdog, which had (rightly) fired before the "still driving" check could see the motors run.
+        b.configure(watchdog_s=1.0)
         b.set_duties([0.2] * 4)
         time.sleep(0.1)
         assert served.status()["motors_stopped"] is False
-        time.sleep(0.6)  # two watchdog timeouts without a client call
+        time.sleep(2.0)  # two watchdog timeouts without a client call
         st = served.status()
         assert st["motors_stopped"] is True and st["faults"] == ["WATCHDOG"]
         b.clear_faults()
