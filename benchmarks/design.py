@@ -5,6 +5,7 @@ fixed grid on simulated worlds.
     nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --rounds   # each round: what ran, SE / target, SE / planned
     nice .venv/bin/python benchmarks/design.py --seeds 5 --no-effect-world --prior    # from the robot's previous campaign
     nice .venv/bin/python benchmarks/design.py --seeds 10 --no-effect-world --generator independent  # other physics
+    nice .venv/bin/python benchmarks/design.py --seeds 10 --only 2,7 --no-effect-world --rounds  # two seeds, same targets
 
 Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files) is simulated
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
@@ -49,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--generator", choices=("model", "independent"), default="model",
                     help="who simulates the worlds: the fit's own simulator, or the physics written for testing "
                          "only (omnibench/worlds/independent.py: exact stick-slip, another integrator)")
+    ap.add_argument("--only", default="",
+                    help="run the adaptive campaign on these seeds alone (e.g. 2,7,8); the targets stay the medians "
+                         "over all --seeds fixed grids")
     ap.add_argument("--rounds", action="store_true",
                     help="also print each adaptive round: what ran, robot s, SE / target after it")
     args = ap.parse_args(argv)
@@ -97,8 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{'world':<16} {'seed':>4} {'robot s':>8} {'actions':>8} {'met':>4} {'rounds':>6} {'cover':>6} "
           f"{'host s':>7}  fixed: met")
     rows = []
+    adaptive_seeds = [int(x) for x in args.only.split(",")] if args.only else seeds
     for wname, weff in worlds:
-        for seed in seeds:
+        for seed in adaptive_seeds:
             t0 = time.time()
 
             def execute(written, r, _seed=seed, _weff=weff):
