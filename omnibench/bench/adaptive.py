@@ -9,7 +9,8 @@ at half the repetitions) is run: its fit measures the noise the plan assumed (ea
 chi^2/dof), so the rest is planned with the noise the robot actually has. Round 1 is the whole
 diagnostic floor, the forward pair first where the robot rests (C_r is then measured before the
 sweep is topped up); the lateral runs' first visit is the plan for half the information (their
-values and noise are guesses until then). When the floor's fit says the declared model misses
+values and noise are guesses until then), made at each prior point of the roller terms (the
+file's values, each times and divided by 2) and chosen by its expected cost over all of them. When the floor's fit says the declared model misses
 something, the rest of the lab's own grid runs instead of a plan, for diagnose.
 
 With `prior` (the fit of the robot's previous campaign, `campaign --adaptive --prior-runs`) the
@@ -111,6 +112,29 @@ def half_information_pilot(block: list[Unit], replan: Callable[[dict[str, tuple[
     mode = block[0].candidate.world.mode
     out = [u for u in first_block(half.units) if u.candidate.world.mode == mode]
     return out if any(u.candidate.procedure == "lateral" for u in out) else block
+
+
+def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str, tuple[float, bool]],
+                     unmeasured: list[str], replan_at: Callable[[Any, dict[str, tuple[float, bool]]], Any],
+                     cost_of: Callable[[list[Unit]], float], current: bool = True) -> list[Unit]:
+    """The half-information pilot made at each prior point of the parameters no data have measured
+    (omnibench.analysis.design.robust), the one with the least expected cost to meet the targets
+    over all the points: cost_of(pilot) x mean over points of max (SE / target)^2. A pilot planned at
+    the robot file's guesses alone can be poor at the truth and cost a second round."""
+    from omnibench.analysis.design.robust import at_point, expected_repeats, prior_points
+
+    if res is None or not unmeasured:
+        return half_information_pilot(block, lambda t: replan_at(res, t), targets)
+    points = prior_points(res.robot, unmeasured)
+    options: list[list[Unit]] = []
+    for pt in points:
+        b = half_information_pilot(block, lambda t, _r=at_point(res, pt): replan_at(_r, t), targets)
+        if not any(sorted((u.candidate.label, u.reps) for u in b) == sorted((u.candidate.label, u.reps) for u in o)
+                   for o in options):
+            options.append(b)
+    if len(options) == 1:
+        return options[0]
+    return min(options, key=lambda b: cost_of(b) * expected_repeats(res, obs, b, targets, unmeasured, points, current))
 
 
 def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
@@ -335,10 +359,14 @@ def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: 
                                                    budget_actions=budget_actions - n_acts, done=done)
                 block = pilot(first_block(units), have, floor)
                 if prior is None and "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
-                    block = half_information_pilot(block, lambda t: plan(
-                        robot, pres, t, space, costs, current=current, start=world,
+                    block = pilot_over_prior(block, pres, obs, aims, [p for p in live if not math.isfinite(se[p])],
+                                             lambda r_, t: plan(
+                        robot, r_, t, space, costs, current=current, start=world,
                         budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                        required=[c for c in floor if c.procedure not in have], obs=obs, done=done), aims)
+                        required=[c for c in floor if c.procedure not in have], obs=obs, done=done),
+                        lambda b: costs.of(sum(u.candidate.robot_seconds * u.reps for u in b), sequence_actions(
+                            [u.candidate.world for u in b for _ in range(u.reps)],
+                            sum(u.candidate.measurements * u.reps for u in b), world, end=None)), current)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
         block_design = _block_prediction(robot, pres, obs, current, block, prior)
         rec = {"round": r, "why": why
@@ -544,8 +572,6 @@ def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path]
                    current: bool) -> dict[str, Any]:
     """The rounds, and the fixed grid's expected SE against robot time (its information at the
     final fit, in the order the shipped procedures run) for comparison."""
-    import numpy as np
-
     from omnibench.analysis.design.files import fixed_grid_units
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import _se, planning_names
@@ -628,7 +654,7 @@ def design_lines(summary: Mapping[str, Any], out: Path) -> list[str]:
              f"{summary['operator_actions'] / max(fx['operator_actions'], 1):.2f}" if fx["robot_seconds"] == fx["robot_seconds"]
              else "- the fixed grid: not priced (no fit)", ""]
     if summary.get("prior_runs"):
-        lines.append(f"- planned from the previous campaign's values and noise (`--prior-runs`, its data not counted): "
+        lines.append("- planned from the previous campaign's values and noise (`--prior-runs`, its data not counted): "
                      + ", ".join(f"`{p}`" for p in summary["prior_runs"]))
     for p, why in summary["refused"].items():
         lines.append(f"- refused target {p}: {why}")
@@ -642,7 +668,7 @@ def design_lines(summary: Mapping[str, Any], out: Path) -> list[str]:
                      + " | ".join(_fmt(r["se"].get(p)) for p in summary["targets"]) + " |")
     lines += ["", "Every round's decision (fit SE, plan, expected SE) is in `design.jsonl` and in the events of "
               "the runs it made (`kind = design`).", "",
-              f"![SE against robot time](plots/design_se_vs_time.png)", ""]
+              "![SE against robot time](plots/design_se_vs_time.png)", ""]
     return lines
 
 

@@ -185,6 +185,72 @@ def test_the_lateral_runs_first_visit_is_the_plan_for_half_the_information():
     assert half_information_pilot(block, refuse, {"a": (0.1, True)}) == block
 
 
+def test_the_lateral_pilot_is_chosen_over_the_prior_points_not_at_the_robot_files_guess(monkeypatch):
+    """The pilot is planned at each prior point of the unmeasured roller terms; the one with the least
+    cost x expected repetitions over all points runs, not the one planned at the file's guess."""
+    from types import SimpleNamespace
+
+    import omnibench.analysis.design.robust as robust
+    from omnibench.analysis.design.planner import Unit
+    from omnibench.analysis.design.space import Candidate
+    from omnibench.bench.adaptive import pilot_over_prior
+    from omnibench.bench.procedure import World
+    from omnibench.model import default_robot
+
+    ground = World("ground", "standard", None, 0.0)
+    cheap = Candidate("lateral", ground, heading=1.5708, speed=0.3, duration=1.5, robot_seconds=5.0, measurements=2)
+    good = Candidate("lateral", ground, heading=0.5236, speed=0.3, duration=3.0, robot_seconds=8.0, measurements=2)
+    res = SimpleNamespace(robot=default_robot())
+    monkeypatch.setattr(robust, "at_point", lambda r, pt: SimpleNamespace(robot=r.robot.replace(**pt)))
+    asked = []
+
+    def replan_at(r, t):  # the file's guess (a_r 2.0) plans the cheap pair, any other point the good one
+        asked.append(r.robot.a_r)
+        return SimpleNamespace(units=[Unit(cheap if r.robot.a_r == 2.0 else good, 1, 0)])
+
+    repeats = {cheap: 3.0, good: 1.0}  # the cheap pair would have to run 3 x over the prior, the good one once
+    monkeypatch.setattr(robust, "expected_repeats", lambda r, o, units, *a, **k: repeats[units[0].candidate])
+    cost = lambda b: sum(u.candidate.robot_seconds * u.reps for u in b)  # noqa: E731
+    out = pilot_over_prior([Unit(good, 2, 0)], res, None, {"a_r": (0.01, True)}, ["a_r"], replan_at, cost)
+    assert sorted(asked) == [1.0, 2.0, 4.0]  # the file's value, times and divided by 2
+    assert [(u.candidate, u.reps) for u in out] == [(good, 1)]  # 8 s x 1 < 5 s x 3
+    repeats[cheap] = 1.5  # 7.5 < 8: now the cheap one is worth it
+    assert [(u.candidate, u.reps) for u in pilot_over_prior([Unit(good, 2, 0)], res, None, {"a_r": (0.01, True)},
+                                                            ["a_r"], replan_at, cost)] == [(cheap, 1)]
+
+
+def test_expected_repetitions_halve_when_a_lateral_design_is_doubled():
+    """With no data on the roller terms their information is the design's alone: twice the pairs,
+    half the (SE / target)^2 at every prior point (to the weak prior's share)."""
+    import math
+
+    from omnibench.analysis.design.files import space_from_files
+    from omnibench.analysis.design.planner import Unit
+    from omnibench.analysis.design.robust import expected_repeats, prior_points
+    from omnibench.analysis.fitting import fit
+    from omnibench.analysis.simcampaign import simulated_observations
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    files = procedure_files(None)
+    space = space_from_files(robot, files)
+    obs = simulated_observations(robot, seed=3, procedures=["sweep", "forward"])  # a, b, c measured, as when the lateral pilot is planned
+    res = fit(robot, obs)
+    lat = [c for c in space.candidates if c.procedure == "lateral" and c.duration == 1.5 and abs(c.speed - 0.3) < 1e-9]
+    pick = lambda h, p: next(c for c in lat if round(math.degrees(c.heading)) == h and c.world.payload == p)  # noqa: E731
+    design = [pick(90, 0.0), pick(30, 0.0), pick(30, 4.0)]
+    roller = ["a_r", "b_r", "c_r"]
+    points = prior_points(res.robot, roller)
+    assert len(points) == 7 and points[0]["a_r"] == res.robot.a_r and {pt["c_r"] for pt in points} == {
+        res.robot.c_r, 2 * res.robot.c_r, res.robot.c_r / 2}
+    targets = {p: (0.005, True) for p in roller}
+    once = expected_repeats(res, obs, [Unit(c, 1, 0) for c in design], targets, roller, points)
+    twice = expected_repeats(res, obs, [Unit(c, 2, 0) for c in design], targets, roller, points)
+    assert math.isfinite(once) and once > 1.0
+    assert twice == pytest.approx(once / 2, rel=0.03)
+
+
 @pytest.mark.slow
 def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan(tmp_path):
     """On a world with an undeclared driver deadband the diagnostic floor's fit flags the misfit
