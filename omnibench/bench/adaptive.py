@@ -121,7 +121,7 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
     (omnibench.analysis.design.robust), the one with the least expected cost to meet the targets
     over all the points: cost_of(pilot) x mean over points of max (SE / target)^2. A pilot planned at
     the robot file's guesses alone can be poor at the truth and cost a second round."""
-    from omnibench.analysis.design.robust import at_point, expected_repeats, prior_points
+    from omnibench.analysis.design.robust import at_point, expected_repeats_of, prior_points
 
     if res is None or not unmeasured:
         return half_information_pilot(block, lambda t: replan_at(res, t), targets)
@@ -134,7 +134,8 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
             options.append(b)
     if len(options) == 1:
         return options[0]
-    return min(options, key=lambda b: cost_of(b) * expected_repeats(res, obs, b, targets, unmeasured, points, current))
+    repeats = expected_repeats_of(res, obs, options, targets, unmeasured, points, current)
+    return min(zip(options, repeats), key=lambda o: cost_of(o[0]) * o[1])[0]
 
 
 def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:

@@ -209,7 +209,8 @@ def test_the_lateral_pilot_is_chosen_over_the_prior_points_not_at_the_robot_file
         return SimpleNamespace(units=[Unit(cheap if r.robot.a_r == 2.0 else good, 1, 0)])
 
     repeats = {cheap: 3.0, good: 1.0}  # the cheap pair would have to run 3 x over the prior, the good one once
-    monkeypatch.setattr(robust, "expected_repeats", lambda r, o, units, *a, **k: repeats[units[0].candidate])
+    monkeypatch.setattr(robust, "expected_repeats_of",
+                        lambda r, o, designs, *a, **k: [repeats[d[0].candidate] for d in designs])
     cost = lambda b: sum(u.candidate.robot_seconds * u.reps for u in b)  # noqa: E731
     out = pilot_over_prior([Unit(good, 2, 0)], res, None, {"a_r": (0.01, True)}, ["a_r"], replan_at, cost)
     assert sorted(asked) == [1.0, 2.0, 4.0]  # the file's value, times and divided by 2
@@ -226,7 +227,7 @@ def test_expected_repetitions_halve_when_a_lateral_design_is_doubled():
 
     from omnibench.analysis.design.files import space_from_files
     from omnibench.analysis.design.planner import Unit
-    from omnibench.analysis.design.robust import expected_repeats, prior_points
+    from omnibench.analysis.design.robust import expected_repeats, expected_repeats_of, prior_points
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.simcampaign import simulated_observations
     from omnibench.bench.campaign import procedure_files
@@ -249,6 +250,12 @@ def test_expected_repetitions_halve_when_a_lateral_design_is_doubled():
     twice = expected_repeats(res, obs, [Unit(c, 2, 0) for c in design], targets, roller, points)
     assert math.isfinite(once) and once > 1.0
     assert twice == pytest.approx(once / 2, rel=0.03)
+    # judged together (each candidate's information computed once per point), each design as alone
+    other = [Unit(pick(60, 0.0), 1, 0), Unit(pick(90, 4.0), 2, 0), Unit(pick(30, 4.0), 1, 0)]
+    alone = expected_repeats(res, obs, other, targets, roller, points)
+    together = expected_repeats_of(res, obs, [[Unit(c, 1, 0) for c in design], other], targets, roller, points)
+    assert together == pytest.approx([once, alone], rel=1e-9)
+    assert alone != pytest.approx(once, rel=0.01)
 
 
 @pytest.mark.slow

@@ -48,20 +48,31 @@ def expected_repeats(res: Any, obs: Any, units: Sequence[Any], targets: Mapping[
                      unmeasured: Sequence[str], points: Sequence[Mapping[str, float]], current: bool = True) -> float:
     """Mean over `points` of max over `unmeasured` of (SE / target)^2 after `units` run, at the
     noise the fit `res` found (groups without data: expected_s2's rule)."""
+    return expected_repeats_of(res, obs, [units], targets, unmeasured, points, current)[0]
+
+
+def expected_repeats_of(res: Any, obs: Any, designs: Sequence[Sequence[Any]], targets: Mapping[str, tuple[float, bool]],
+                        unmeasured: Sequence[str], points: Sequence[Mapping[str, float]],
+                        current: bool = True) -> list[float]:
+    """`expected_repeats` of each design, the information of the data in hand and of every
+    candidate computed once per point (not once per design and point: each is a Jacobian of all
+    the rows, the most of the pilot's planning time)."""
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import _se, planning_names, target_se
     from omnibench.analysis.fitting import param_value
 
-    cands = [u.candidate for u in units]
-    reps = np.array([u.reps for u in units], dtype=float)
-    scores = []
+    cands = list(dict.fromkeys(u.candidate for d in designs for u in d))
+    where = {c: k for k, c in enumerate(cands)}
+    scores: list[list[float]] = [[] for _ in designs]
     for pt in points:
         r = at_point(res, pt)
         names = planning_names(r.robot, current)
         ci = candidate_information(r.robot, cands, names, current=current, group_s2=res.group_s2,
                                    group_dof=res.group_dof)
-        M = prior_information(r, names, ci.scale, obs) + np.tensordot(reps, ci.info, axes=1)
-        se = _se(M, ci.scale)
+        M0 = prior_information(r, names, ci.scale, obs)
         tabs = target_se(targets, {p: param_value(r.robot, p) for p in targets})
-        scores.append(max((se[names.index(p)] / tabs[p]) ** 2 for p in unmeasured if p in names))
-    return float(np.mean(scores)) if scores else math.inf
+        for d, design in enumerate(designs):
+            M = M0 + sum((u.reps * ci.info[where[u.candidate]] for u in design), np.zeros_like(M0))
+            se = _se(M, ci.scale)
+            scores[d].append(max((se[names.index(p)] / tabs[p]) ** 2 for p in unmeasured if p in names))
+    return [float(np.mean(sc)) if sc else math.inf for sc in scores]
