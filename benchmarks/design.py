@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                    "rounds": len(res.rounds), "cover": cover, "host": time.time() - t0, "fixed_met": fixed_met,
                    "obs": res.obs}
             rows.append(row)
-            print(f"{wname:<16} {seed:>4} {row['s']:>8.0f} {row['a']:>8} {str(res.met)[0]:>4} {row['rounds']:>6} "
+            print(f"{wname:<16} {seed:>4} {row['s']:>8.1f} {row['a']:>8} {str(res.met)[0]:>4} {row['rounds']:>6} "
                   f"{sum(cover):>3}/{len(cover):<2} {row['host']:>7.0f}  {fixed_met}", flush=True)
             if not res.met:
                 print(f"    stopped: {res.stop_reason}", flush=True)
@@ -152,8 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         med_s = statistics.median(r["s"] for r in rs)
         med_a = statistics.median(r["a"] for r in rs)
         cov = [c for r in rs for c in r["cover"]]
-        print(f"{wname}: median robot time {med_s:.0f} s vs fixed {fixed_s:.0f} s (ratio adaptive/fixed "
-              f"{med_s / fixed_s:.2f}); median operator actions {med_a:.0f} vs {fixed_a} (ratio {med_a / fixed_a:.2f}); "
+        print(f"{wname}: median robot time {med_s:.1f} s vs fixed {fixed_s:.1f} s (ratio adaptive/fixed "
+              f"{med_s / fixed_s:.3f}); median operator actions {med_a:.0f} vs {fixed_a} (ratio {med_a / fixed_a:.2f}); "
               f"targets met {sum(r['met'] for r in rs)}/{len(rs)} (fixed grid itself: "
               f"{sum(r['fixed_met'] for r in rs)}/{len(rs)}); 95 % interval coverage {100 * np.mean(cov):.0f} % "
               f"({sum(cov)}/{len(cov)})" + (" [model lacks the world's effect: coverage not expected]"
