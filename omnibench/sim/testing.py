@@ -16,6 +16,14 @@ from pathlib import Path
 START_TIMEOUT_S = 240.0  # a first start may compile the physics kernel (numba), slowly on a busy machine
 
 
+def sigint_as_in_a_terminal() -> None:
+    """Popen `preexec_fn` for a child a test will interrupt: SIGINT back to its default, as a
+    terminal's foreground job has it. A non-interactive shell starts a background command with
+    SIGINT ignored (POSIX), every child inherits that, and Python then installs no
+    KeyboardInterrupt: a suite launched as `cmd &` saw its Ctrl-C tests run to their end."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @dataclass
 class Served:
     proc: subprocess.Popen

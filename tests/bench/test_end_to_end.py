@@ -19,7 +19,7 @@ import pytest
 from omnibench.cli import main
 from omnibench.model import default_robot
 from omnibench.runs import read_run
-from omnibench.sim.testing import spawn_server
+from omnibench.sim.testing import sigint_as_in_a_terminal, spawn_server
 
 HERE = Path(__file__).parent
 PROC = HERE / "procedures"
@@ -132,7 +132,8 @@ def test_sigint_stops_motors_marks_aborted_and_resume_completes(tmp_path):
         out = tmp_path / "runs"
         cmd = [sys.executable, "-m", "omnibench", "sweep", "--port", srv.path, "--procedure",
                str(PROC / "sigint_sweep.toml"), "--out", str(out)]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=sigint_as_in_a_terminal)
         _wait_rows(out, rng.randint(3, 150), proc)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=120)

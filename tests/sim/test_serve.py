@@ -11,7 +11,7 @@ import time
 import pytest
 
 from omnibench.link.board import Board
-from omnibench.sim.testing import spawn_server
+from omnibench.sim.testing import sigint_as_in_a_terminal, spawn_server
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,8 @@ def test_interrupted_client_leaves_motors_stopped(served) -> None:
             for s in b.samples(60.0):
                 pass
     """)
-    proc = subprocess.Popen([sys.executable, "-c", client], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", client], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=sigint_as_in_a_terminal)
     try:
         assert proc.stdout.readline().strip() == "driving"
         time.sleep(0.3)
