@@ -57,7 +57,7 @@ FRICTION = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
 
 # ---------------------------------------------------------------------------------------------
 # The comparison: the paper's model (design.md §2) as a plain Python loop over steps, numpy for
-# each step, classical RK4 at dt, the same regularised sign as the kernel. Nothing shared with
+# each step, classical RK4 at dt, the same regularised signs as the kernel. Nothing shared with
 # the kernel but the robot's numbers and the geometry matrices.
 # ---------------------------------------------------------------------------------------------
 class NumpyModel:
@@ -72,6 +72,10 @@ class NumpyModel:
 
     @staticmethod
     def sign(x: np.ndarray, eps: float) -> np.ndarray:
+        return np.tanh(x / eps)
+
+    @staticmethod
+    def slip_sign(x: np.ndarray, eps: float) -> np.ndarray:
         return x / np.sqrt(x * x + eps * eps)
 
     def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -84,7 +88,7 @@ class NumpyModel:
         tau = rb.eta * rb.k_t * i
         tau = tau - (1 + rb.c * FN) * (rb.a * phid + rb.b * self.sign(phid, rb.sign_width_phi))
         tau = tau - FN * rb.C_r * rb.r * self.sign(phid, rb.sign_width_phi)
-        f_roller = -(1 + rb.c_r * FN) * (rb.a_r * sig + rb.b_r * self.sign(sig, rb.sign_width_sigma))
+        f_roller = -(1 + rb.c_r * FN) * (rb.a_r * sig + rb.b_r * self.slip_sign(sig, rb.sign_width_sigma))
         coriolis = np.array([self.mass * v[2] * v[1], -self.mass * v[2] * v[0], 0.0])
         vdot = self.Minv @ (self.R.T @ tau + self.S.T @ f_roller + coriolis)
         qdot = rotation(x[2]) @ v

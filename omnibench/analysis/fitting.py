@@ -71,8 +71,8 @@ CONFOUND_TOL = 1e-3
 #: no say upside down.)
 MIN_SWEEP_SPEED = 0.3
 #: Ground-run wheel speeds slower than this many sign widths (`sign_width_phi`) are left out of
-#: the fit: there the regularised sign is more than 0.5 % short of Coulomb's and the model's wheel
-#: creeps where a real one sticks (a lateral run at 45 deg stops two wheels; docs/robot-file.md).
+#: the fit: the model's wheel creeps there where a real one sticks (a lateral run at 45 deg stops
+#: two wheels; docs/robot-file.md). (Above it the wheel sign, tanh, is Coulomb's to 4e-9.)
 MIN_GROUND_SPEED_WIDTHS = 10.0
 #: Typical magnitudes (SI) used to scale parameters and finite-difference steps.
 TYPICAL = {"a": 0.01, "b": 0.5, "c": 0.01, "a_r": 2.0, "b_r": 1.0, "c_r": 0.01, "C_r": 0.02,

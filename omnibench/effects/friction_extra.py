@@ -1,7 +1,7 @@
 """Wheel-axle friction effects the paper's model lacks (torque domain, `wheel_torque` hook).
 
 All torques are on the wheel axle (referred to the wheel shaft, like the paper's a, b), N m,
-positive in the sense of positive wheel speed. `sign_eps` is the model's regularised sign
+positive in the sense of positive wheel speed. `wheel_sign` is the model's regularised wheel sign
 (width `sign_width_phi`, rad/s), so every Coulomb-type term is smooth at zero speed.
 
   stribeck_friction   tau = -(1 + c_s F_N) b_s exp(-|phi_dot / w_s|^shape) sign(phi_dot)   (ground: sign rounded over max(eps, w_s/2))
@@ -21,7 +21,7 @@ import math
 from numba import njit
 
 from omnibench.model.context import CTX_MODE, CTX_SIGN_PHI
-from omnibench.model.smooth import sign_eps
+from omnibench.model.smooth import wheel_sign
 from omnibench.model.terms import Param, Term, register
 
 
@@ -37,7 +37,7 @@ def stribeck_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     eps = max(ctx[CTX_SIGN_PHI], 0.5 * w_s * (1.0 - ctx[CTX_MODE]))
     for j in range(4):
         x = abs(phi_dot[j]) / w_s
-        out[j] = -(1.0 + c_s * FN[j]) * b_s * math.exp(-(x ** shape)) * sign_eps(phi_dot[j], eps)
+        out[j] = -(1.0 + c_s * FN[j]) * b_s * math.exp(-(x ** shape)) * wheel_sign(phi_dot[j], eps)
 
 
 @njit(cache=True)
@@ -49,7 +49,7 @@ def asymmetric_coulomb_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
         return
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
-        out[j] = -(1.0 + c_db * FN[j]) * db * abs(sign_eps(phi_dot[j], eps))
+        out[j] = -(1.0 + c_db * FN[j]) * db * abs(wheel_sign(phi_dot[j], eps))
 
 
 @njit(cache=True)
@@ -58,7 +58,7 @@ def per_wheel_friction_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
         if p[j] != 0.0 or p[4 + j] != 0.0:
-            out[j] = -p[4 + j] * phi_dot[j] - p[j] * sign_eps(phi_dot[j], eps)
+            out[j] = -p[4 + j] * phi_dot[j] - p[j] * wheel_sign(phi_dot[j], eps)
 
 
 @njit(cache=True)

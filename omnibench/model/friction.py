@@ -11,7 +11,7 @@ from __future__ import annotations
 from numba import njit
 
 from omnibench.model.context import CTX_MODE, CTX_R, CTX_SIGN_PHI, CTX_SIGN_SIGMA, MODE_GROUND
-from omnibench.model.smooth import sign_eps
+from omnibench.model.smooth import slip_sign, wheel_sign
 from omnibench.model.terms import Param, Term, register
 
 
@@ -21,7 +21,7 @@ def transmission_friction_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     a, b, c = p[0], p[1], p[2]
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
-        out[j] = -(1.0 + c * FN[j]) * (a * phi_dot[j] + b * sign_eps(phi_dot[j], eps))
+        out[j] = -(1.0 + c * FN[j]) * (a * phi_dot[j] + b * wheel_sign(phi_dot[j], eps))
 
 
 @njit(cache=True)
@@ -30,7 +30,7 @@ def roller_friction_force(out, sigma, FN, ctx, p):
     a_r, b_r, c_r = p[0], p[1], p[2]
     eps = ctx[CTX_SIGN_SIGMA]
     for j in range(4):
-        out[j] = -(1.0 + c_r * FN[j]) * (a_r * sigma[j] + b_r * sign_eps(sigma[j], eps))
+        out[j] = -(1.0 + c_r * FN[j]) * (a_r * sigma[j] + b_r * slip_sign(sigma[j], eps))
 
 
 @njit(cache=True)
@@ -42,7 +42,7 @@ def rolling_resistance_torque(out, phi, phi_dot, FN, i_motor, xs, ctx, p):
     r = ctx[CTX_R]
     eps = ctx[CTX_SIGN_PHI]
     for j in range(4):
-        out[j] = -FN[j] * C_r * r * sign_eps(phi_dot[j], eps)
+        out[j] = -FN[j] * C_r * r * wheel_sign(phi_dot[j], eps)
 
 
 transmission_friction = register(

@@ -14,7 +14,7 @@ from omnibench.analysis.fitting import predict_observations
 from omnibench.analysis.model_file import load_model, write_model
 from omnibench.analysis.observations import Observations, slope_fit
 from omnibench.errors import UserError
-from omnibench.model.smooth import sign_eps
+from omnibench.model.smooth import wheel_sign
 
 
 def test_slope_fit_of_an_exact_line_and_of_noise():
@@ -49,7 +49,7 @@ def test_sweep_prediction_equals_the_closed_form_steady_state(truth):
 
         def torque(w):
             i = (u * truth.V_batt - truth.k_e * w) / truth.R_a
-            return truth.eta * truth.k_t * i - (1 + truth.c * F) * (truth.a * w + truth.b * sign_eps(w, EXACT_SIGN_WIDTH))
+            return truth.eta * truth.k_t * i - (1 + truth.c * F) * (truth.a * w + truth.b * wheel_sign(w, EXACT_SIGN_WIDTH))
 
         w = brentq(torque, -30, 30, xtol=1e-12)
         i = (u * truth.V_batt - truth.k_e * w) / truth.R_a

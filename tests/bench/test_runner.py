@@ -44,8 +44,8 @@ def test_steady_state_accepts_constant_speed_and_rejects_a_ramp():
 
 def closed_form(robot, u, wheel_mass):
     """Upside-down steady speed (rad/s), design.md §2 with F_N = wheel weight:
-    eta k_t (u V - k_e w)/R_a = (1 + c m g)(a w + b sign_eps(w)), the model's regularised sign
-    sign_eps(w) = w / sqrt(w^2 + eps^2) (eps = sign_width_phi)."""
+    eta k_t (u V - k_e w)/R_a = (1 + c m g)(a w + b wheel_sign(w)), the model's regularised sign
+    wheel_sign(w) = tanh(w / eps) (eps = sign_width_phi)."""
     from scipy.optimize import brentq
 
     k = robot.eta * robot.k_t / robot.R_a
@@ -53,7 +53,7 @@ def closed_form(robot, u, wheel_mass):
     eps = robot.sign_width_phi
 
     def f(w):
-        return k * (abs(u) * robot.V_batt - robot.k_e * w) - load * (robot.a * w + robot.b * w / math.sqrt(w * w + eps * eps))
+        return k * (abs(u) * robot.V_batt - robot.k_e * w) - load * (robot.a * w + robot.b * math.tanh(w / eps))
 
     return math.copysign(brentq(f, 0.0, abs(u) * robot.V_batt / robot.k_e), u)
 

@@ -277,7 +277,8 @@ def _numpy_reference(robot, t_cmd, u_cmd, t_end, dt=1e-3):
     S = slip_matrix(robot.L, robot.l, robot.alpha)
     FN = np.full(4, robot.m * GRAVITY / 4.0)
     Minv = np.linalg.inv(np.diag([robot.m, robot.m, robot.I_z]) + robot.I_w * R.T @ R)
-    sgn = lambda x, e: x / np.sqrt(x * x + e * e)  # noqa: E731
+    sgn = lambda x, e: np.tanh(x / e)  # noqa: E731  (wheel speeds)
+    slip = lambda x, e: x / np.sqrt(x * x + e * e)  # noqa: E731  (roller slip)
 
     def f(x, u):
         v = x[3:6]
@@ -286,7 +287,7 @@ def _numpy_reference(robot, t_cmd, u_cmd, t_end, dt=1e-3):
         tau = (robot.eta * robot.k_t * i
                - (1 + robot.c * FN) * (robot.a * phid + robot.b * sgn(phid, robot.sign_width_phi))
                - FN * robot.C_r * robot.r * sgn(phid, robot.sign_width_phi))
-        fr = -(1 + robot.c_r * FN) * (robot.a_r * sig + robot.b_r * sgn(sig, robot.sign_width_sigma))
+        fr = -(1 + robot.c_r * FN) * (robot.a_r * sig + robot.b_r * slip(sig, robot.sign_width_sigma))
         g = R.T @ tau + S.T @ fr + np.array([robot.m * v[2] * v[1], -robot.m * v[2] * v[0], 0.0])
         return np.concatenate([rotation(x[2]) @ v, Minv @ g, [robot.V_batt * u @ i]])
 
