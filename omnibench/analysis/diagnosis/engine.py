@@ -237,10 +237,17 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
             return ((problem.y - cache[key]) * w)[used]
 
         def jac(xv: np.ndarray) -> np.ndarray:
-            xs = [xv] + [xv + steps[j] * np.eye(len(xv))[j] for j in range(len(xv))]
-            F = problem.predict([at(v) for v in xs])
-            cache[xv.tobytes()] = F[0]
-            return -((F[1:] - F[0]) / steps[:, None] * w).T[used]
+            # least_squares asks for the Jacobian where it has just evaluated the residual: the
+            # prediction there is cached, and only the shifted points are simulated
+            key = xv.tobytes()
+            shifted = [xv + steps[j] * np.eye(len(xv))[j] for j in range(len(xv))]
+            if key in cache:
+                f0, F = cache[key], problem.predict([at(v) for v in shifted])
+            else:
+                F = problem.predict([at(v) for v in [xv] + shifted])
+                f0, F = F[0], F[1:]
+                cache[key] = f0
+            return -((F - f0) / steps[:, None] * w).T[used]
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
