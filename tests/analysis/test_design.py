@@ -185,3 +185,30 @@ def test_a_floor_level_the_model_predicts_stuck_is_priced_at_nothing_and_not_pla
     d = plan(robot, None, {"a": (0.05, True), "b": (0.05, True)}, space, required=floor, info=info)
     planned = {u.candidate for u in d.units}
     assert stuck[0] not in planned and all(c in planned for c in floor if c is not stuck[0])
+
+
+def test_candidate_information_is_simulated_once_per_robot_and_reweighted_per_call(monkeypatch):
+    """An adaptive round asks for the same candidates' information at the same fit up to three
+    times with other noise scales: the Jacobian is simulated once, each group's scale applied per
+    call (a group at s^2 = 4 carries a quarter of the information), and a robot with other values
+    is simulated again."""
+    import numpy as np
+
+    import omnibench.analysis.design.information as information
+
+    robot = default_robot().replace(**TRUTH)
+    sp = _sweep_space(robot)
+    names = planning_names(robot)
+    plain = candidate_information(robot, sp.candidates, names)
+    assert plain.usable.any()
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated again for the same robot and candidates")
+
+    monkeypatch.setattr(information, "_simulate_sensitivity", no_simulation)
+    again = candidate_information(robot, sp.candidates, names)
+    assert np.array_equal(again.info, plain.info) and np.array_equal(again.usable, plain.usable)
+    noisy = candidate_information(robot, sp.candidates, names, group_s2={"sweep/omega": 4.0, "sweep/current": 4.0})
+    assert np.allclose(noisy.info, plain.info / 4.0, rtol=1e-12, atol=0.0)
+    with pytest.raises(AssertionError, match="simulated again"):
+        candidate_information(robot.replace(a=0.03), sp.candidates, names)

@@ -132,9 +132,37 @@ class CandidateInformation:
     usable: np.ndarray  # (K,) bool: gives the fit any usable observation
 
 
+@dataclass(frozen=True)
+class _Sensitivity:
+    """What candidate_information simulates: the stated-noise Jacobian of every usable row (scaled
+    parameters), the candidate and observation group of each row. The noise scales apply after."""
+
+    J: np.ndarray
+    cand_of: np.ndarray
+    groups: np.ndarray
+
+
+#: The last few sensitivities, by (robot, candidates, names, current): an adaptive round asks for
+#: the same one up to three times (the plan, its re-plan at calibrated targets, the current pose's
+#: deferral), each a Jacobian of every candidate's rows (about 10 s on a 2-core machine).
+_SENSITIVITIES: dict[tuple, _Sensitivity] = {}
+_SENSITIVITIES_KEPT = 8
+
+
+def _sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+                 current: bool) -> _Sensitivity:
+    key = (repr(robot), tuple(cands), tuple(names), current)
+    hit = _SENSITIVITIES.pop(key, None)
+    if hit is None:
+        hit = _simulate_sensitivity(robot, cands, names, scale, current)
+    _SENSITIVITIES[key] = hit  # most recent last
+    while len(_SENSITIVITIES) > _SENSITIVITIES_KEPT:
+        _SENSITIVITIES.pop(next(iter(_SENSITIVITIES)))
+    return hit
+
+
 def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
                           group_s2: Mapping[str, float] | None = None,
-                          effects: Mapping[str, Any] | None = None,
                           group_dof: Mapping[str, float] | None = None) -> CandidateInformation:
     """Information each candidate adds about `names` at `robot`'s parameter values (each group's
     noise scale from `expected_s2(group_s2, group_dof)`)."""
@@ -145,6 +173,22 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     usable = np.zeros(K, dtype=bool)
     if not K:
         return CandidateInformation(names, scale, info, usable)
+    sens = _sensitivity(robot, cands, names, scale, current)
+    s2 = np.ones(len(sens.groups))
+    for g, v in expected_s2(group_s2 or {}, group_dof).items():
+        if v and math.isfinite(v) and v > 0:
+            s2[sens.groups == g] = v
+    Jw = sens.J / np.sqrt(s2)[:, None]
+    for k in range(K):
+        m = sens.cand_of == k
+        if m.any():
+            usable[k] = True
+            info[k] = Jw[m].T @ Jw[m]
+    return CandidateInformation(names, scale, info, usable)
+
+
+def _simulate_sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+                          current: bool) -> _Sensitivity:
     obs = _rows(cands, robot, current)
     pred = Predictor(obs, [p for p in ("sweep", "forward", "lateral") if len(obs.table(p))])
     f0 = pred.predict([robot])[0]
@@ -162,24 +206,15 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
             if sp.size and sp.min() < MIN_SWEEP_SPEED:
                 slow[ix] = True
     used &= ~slow & ~creeping_ground_speeds(t, f0, robot)  # a wheel predicted stuck on the ground: the fit leaves it out
-    s2 = np.ones(len(t))
     groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
-    for g, v in expected_s2(group_s2 or {}, group_dof).items():
-        if v and math.isfinite(v) and v > 0:
-            s2[groups == g] = v
     pred.measured = f0.copy()
     prob = _Problem(robot, pred, names, used, pred.sigma)
     prob.scale = scale
     J = prob.jacobian(np.array([float(_value(robot, p)) for p in names]) / scale)
     rows = np.flatnonzero(used)
     cand_of = np.array([int(str(r).split("-")[1]) for r in t["run"].to_numpy()[rows]])
-    Jw = J / np.sqrt(s2[rows])[:, None]
-    for k in range(K):
-        m = cand_of == k
-        if m.any():
-            usable[k] = True
-            info[k] = Jw[m].T @ Jw[m]
-    return CandidateInformation(names, scale, info, usable)
+    J.flags.writeable = False  # shared by every caller of the cache
+    return _Sensitivity(J, cand_of, groups[rows])
 
 
 def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_rev: float) -> None:
