@@ -72,7 +72,8 @@ TRACE_COLUMNS = ["t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4", "i
 
 #: Default operator tape noise (one standard deviation), m, when a run does not say.
 DEFAULT_TAPE_SE = 0.002
-#: Window over which a steady speed is taken (s), as in procedures/upside_down_sweep.toml.
+#: Window over which a steady speed is taken (s), as in procedures/upside_down_sweep.toml: a run's
+#: sweep steps record their own (`average`); runs that do not (older logs) were taken over this.
 STEADY_AVERAGE = 0.3
 
 
@@ -392,11 +393,13 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
         w_se = np.full(4, np.nan)
         i_se = np.full(4, np.nan)
         v_batt = supply_at_rest(run.samples)
+        average = _num(st.get("average"))  # the runner's averaging time (older runs: the default's)
+        average = average if math.isfinite(average) and average > 0 else STEADY_AVERAGE
         if len(s) >= 4:
             t = s["t"].to_numpy(dtype=float)
             t_end = _num(st.get("t_end"))
             t_end = t_end if math.isfinite(t_end) else t[-1]
-            sel = (t >= t_end - STEADY_AVERAGE) & (t <= t_end + 1e-9)
+            sel = (t >= t_end - average) & (t <= t_end + 1e-9)
             if sel.sum() >= 4:
                 tr = _trace(s[sel], None, cpr, relative=False)
                 _, w_se = encoder_slope_fit(tr["t"].to_numpy(), tr[[f"phi{j}" for j in range(1, 5)]].to_numpy(), cpr)
@@ -410,9 +413,9 @@ def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
                 std = _num(st.get(f"w_std{j + 1}"))
                 if math.isfinite(std):
                     dt = 0.01
-                    m = max(3, int(round(STEADY_AVERAGE / dt)))
+                    m = max(3, int(round(average / dt)))
                     sig = std * dt / math.sqrt(2)
-                    w_se[j] = max(sig, floor) * math.sqrt(12.0 / (m * STEADY_AVERAGE ** 2))
+                    w_se[j] = max(sig, floor) * math.sqrt(12.0 / (m * average ** 2))
         for j in range(4):
             u = _num(st.get(f"u{j + 1}", st.get("duty")))
             if not math.isfinite(u):

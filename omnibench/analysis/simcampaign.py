@@ -116,11 +116,14 @@ def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, fl
         if proc == "sweep":
             scen = [Scenario(mode="upside_down", wheel_mass=s.world.wheel_mass, effects=world_effects) for s in steps]
             U = np.array([[s.schedule[0][1]] for s in steps])
-            res = simulate(robot, scen, [0.0], U, SWEEP_HOLD, dt=PHYSICS_DT, record_every=every)
+            # the speed is the slope over the file's last `average` s; a longer average holds the level longer
+            average = float(plan.settings["steady_state"]["average"])
+            hold = SWEEP_HOLD + max(average - STEADY_AVERAGE, 0.0)
+            res = simulate(robot, scen, [0.0], U, hold, dt=PHYSICS_DT, record_every=every)
             rows = []
             for b, s in enumerate(steps):
                 tr = _sensors(rng, res, b, cpr, current, [0.0], U[b])
-                sel = tr["t"].to_numpy() >= SWEEP_HOLD - STEADY_AVERAGE - 1e-9
+                sel = tr["t"].to_numpy() >= hold - average - 1e-9
                 w, w_se = encoder_slope_fit(tr["t"].to_numpy()[sel], tr[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel],
                                             cpr)
                 n = int(sel.sum())
@@ -134,7 +137,7 @@ def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, fl
                                  "current": float(cur.mean()) if current else float("nan"),
                                  "current_se": float(max(cur.std(ddof=1), CURRENT_LSB / math.sqrt(12)) / math.sqrt(n))
                                  if current else float("nan"),
-                                 "n": n, "steady": True, "time": (s.index + 1) * SWEEP_HOLD})
+                                 "n": n, "steady": True, "time": (s.index + 1) * hold})
             obs.sweep = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
         elif proc in ("forward", "lateral"):
             scen = [Scenario(mode="ground", payload=s.world.payload, effects=world_effects) for s in steps]

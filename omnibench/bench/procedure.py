@@ -368,8 +368,8 @@ def expand_upside_down_sweep(pf: ProcedureFile, robot: Any) -> Plan:
         "max_hold": pf.quantity("steady_state", ss, "max_hold", "s", 5.0, lo=0, lo_open=True, hi=3600),
         "average": pf.quantity("steady_state", ss, "average", "s", 0.3, lo=0.02, lo_open=True),
     }
-    if steady["max_hold"] < steady["min_hold"] + steady["window"]:
-        pf.fail("steady_state", "max_hold", "must be at least min_hold + window")
+    if steady["max_hold"] < steady["min_hold"] + max(steady["window"], steady["average"]):
+        pf.fail("steady_state", "max_hold", "must be at least min_hold + window (and min_hold + average)")
     rest_t = pf.table("rest", required=False)
     pf.check_keys("rest", rest_t, ["between_levels", "between_directions"])
     rest_levels = pf.quantity("rest", rest_t, "between_levels", "s", 0.0, lo=0)

@@ -16,8 +16,8 @@ timed runs, for the start mark and the measurement after the run.
 
 Results each step adds to its record (units SI):
 
-- ``hold`` (upside-down sweep): ``steady`` (bool), ``hold_time`` s, ``w1..w4`` steady wheel
-  speeds rad/s (slope of a straight-line fit of the wheel angle over the last `average` s),
+- ``hold`` (upside-down sweep): ``steady`` (bool), ``hold_time`` s, ``average`` s, ``w1..w4`` steady
+  wheel speeds rad/s (slope of a straight-line fit of the wheel angle over the last `average` s),
   ``w_std1..4`` rad/s (std of the two-reading speeds in that window), ``i1..i4`` mean motor
   currents A, ``V_batt``, ``I_batt`` means, ``t_hold`` board time the duty was applied.
 - ``timed`` (forward/lateral): ``dphi1..4`` rad (encoder angle change over the run),
@@ -414,8 +414,11 @@ class Runner:
         verdict: list[SteadyVerdict | None] = [None]
         counter = [0]
 
+        # the speed is the slope over the last `average` s: the level is held at least that long past min_hold
+        earliest = ss["min_hold"] + max(ss["window"], ss["average"])
+
         def until(rel: float) -> bool:
-            if rel < ss["min_hold"] + ss["window"]:
+            if rel < earliest:
                 return False
             counter[0] += 1
             if counter[0] % 3:
@@ -437,7 +440,7 @@ class Runner:
         v = verdict[0]
         rec: dict[str, Any] = {
             "steady": bool(v.steady) if v is not None else False,
-            "hold_time": t_end - t0, "t_rest": t_rest, "t_hold": t0, "t_start": t_rest if t_rest is not None else t0,
+            "hold_time": t_end - t0, "average": float(ss["average"]), "t_rest": t_rest, "t_hold": t0, "t_start": t_rest if t_rest is not None else t0,
             "t_end": t_end, "samples_used": len(hold.t), "samples_rejected": data.rejected + hold.rejected,
             **{f"w{j + 1}": float(w[j]) for j in range(4)},
             **{f"w_std{j + 1}": float(np.std(wk[:, j], ddof=1)) if len(wk) > 1 else None for j in range(4)},

@@ -293,3 +293,28 @@ def test_board_fault_mid_sweep_stops_keeps_the_data_and_exits_3(capsys, tmp_path
     st = registry.get(name).status()
     assert st["duties"] == [0.0, 0.0, 0.0, 0.0] and st["faults"] == ["OVERCURRENT"]
     assert "motors stopped" in err and "NOT confirmed" not in err
+
+
+def test_a_longer_speed_average_holds_each_level_longer_and_the_fit_states_its_smaller_error(capsys, tmp_path):
+    """A sweep file whose steady_state.average is 0.6 s (the planner writes such files): every
+    level is held at least min_hold + 0.6 s over sim://, its record says so, and the observations
+    read the speed over those 0.6 s: about 60 samples, and an SE well under the 0.3 s one (a line
+    through the encoder's rounding: SE ~ average^-1.5, 2.8 x smaller for twice the time)."""
+    from omnibench.analysis.observations import Observations
+
+    text = (PROC / FILES["sweep"]).read_text()
+    longer = tmp_path / "sweep_06.toml"
+    longer.write_text(text.replace('max_hold = "2 s"', 'max_hold = "2 s"\naverage = "0.6 s"'))
+    se, n = {}, {}
+    for name, path in (("0.3", PROC / FILES["sweep"]), ("0.6", longer)):
+        code, out, err = omnibench(capsys, "sweep", "--port", "sim://?seed=5", "--procedure", str(path),
+                                   "--out", str(tmp_path / name), "--json")
+        assert code == 0, err
+        run = read_run(json.loads(out)["run"])
+        assert (run.steps["average"] == float(name)).all()
+        assert (run.steps["hold_time"] >= 0.2 + float(name) - 0.011).all()  # min_hold + average, one sample
+        obs = Observations.from_runs([run.path], default_robot())
+        se[name] = float(np.median(obs.sweep["omega_se"]))
+        n[name] = obs.sweep["n"].to_numpy()
+    assert ((n["0.6"] >= 58) & (n["0.6"] <= 62)).all() and ((n["0.3"] >= 28) & (n["0.3"] <= 32)).all()
+    assert se["0.6"] < se["0.3"] / 2
