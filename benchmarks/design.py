@@ -14,7 +14,7 @@ the same code `campaign --adaptive` runs) then plans, simulates the planned proc
 (`simcampaign.simulated_observations` with those files: the model, or with `--generator independent`
 the physics written for testing only, with the simulated board's sensor noise),
 fits and re-plans until the targets are met. Both are priced with the same cost model: robot
-seconds of the steps (sweep holds at min_hold + window), operator actions (flips, wheel swaps,
+seconds of the steps (sweep holds at min_hold + max(window, average)), operator actions (flips, wheel swaps,
 payload changes, tape measurements) including the return to the rest state.
 
 Printed: per seed and world, robot time and operator actions of both, whether the targets were

@@ -161,9 +161,16 @@ def rest_of_lab_grid(grid: list[Unit], done: Mapping[Any, int], world: World | N
     """The lab's own grid (`fixed_grid_units`) less the pairs already run, the current pose (and
     world) first, within `budget_seconds` of robot time. What the campaign runs when the declared
     model misses something: the planner's information assumes the model, and diagnose is
-    validated on the lab's grid (benchmarks/diagnose.py)."""
-    left = [Unit(u.candidate, u.reps - done.get(u.candidate, 0), u.rank) for u in grid
-            if u.reps > done.get(u.candidate, 0)]
+    validated on the lab's grid (benchmarks/diagnose.py). A sweep level run at another averaging
+    time (the diagnostic floor's) counts as run."""
+    def step(c: Any) -> tuple:
+        return (c.procedure, c.world, c.duty, c.heading, c.speed, None if c.procedure == "sweep" else c.duration)
+
+    ran: dict[tuple, int] = {}
+    for c, n in done.items():
+        ran[step(c)] = ran.get(step(c), 0) + n
+    left = [Unit(u.candidate, u.reps - ran.get(step(u.candidate), 0), u.rank) for u in grid
+            if u.reps > ran.get(step(u.candidate), 0)]
     if world is not None:
         left.sort(key=lambda u: (u.candidate.world.mode != world.mode, u.candidate.world != world, u.rank))
     out, spent = [], 0.0

@@ -16,7 +16,7 @@ from omnibench.bench.procedure import load_plan
 from omnibench.errors import UserError
 from omnibench.model import default_robot
 
-STEADY = {"min_hold": 0.2, "window": 0.3}
+STEADY = {"min_hold": 0.2, "window": 0.3, "average": 0.3}
 TRUTH = dict(a=0.02, b=0.45, c=0.015)
 LIMITS = Limits(max_duty=0.8)  # the shipped files' highest level, as space_from_files caps it
 
@@ -129,7 +129,7 @@ def test_the_repetition_cap_counts_the_pairs_the_data_already_hold():
 
     robot = default_robot()
     sp = _sweep_space(robot)
-    targets = {"a": (0.005, True), "c": (0.01, True)}
+    targets = {"a": (0.0025, True), "c": (0.005, True)}
     info = candidate_information(robot, sp.candidates, planning_names(robot))
     first = plan(robot, None, targets, sp, info=info)
     top = max(first.units, key=lambda u: u.reps)
@@ -212,3 +212,47 @@ def test_candidate_information_is_simulated_once_per_robot_and_reweighted_per_ca
     assert np.allclose(noisy.info, plain.info / 4.0, rtol=1e-12, atol=0.0)
     with pytest.raises(AssertionError, match="simulated again"):
         candidate_information(robot.replace(a=0.03), sp.candidates, names)
+
+
+def test_a_sweep_level_averaged_twice_as_long_is_worth_more_than_its_longer_hold(tmp_path):
+    """Each sweep level is offered at the file's averaging time and at twice it. A line through
+    n equally spaced readings has slope variance 12 s^2 / (n^3 - n) / dt^2: 60 readings instead of
+    30 give 8.0 x the information for a hold of min_hold + average (0.85 s instead of 0.55). The
+    planner prices it so (the rounding error is not white: 6-13 x at the sweep's speeds), and a world's levels at two averaging times are two files, each resting
+    before its directions: the design's robot time counts both rests."""
+    import math
+
+    from omnibench.analysis.design.information import slope_se
+    from omnibench.analysis.design.space import sweep_hold
+
+    assert (slope_se(0.3, 1.0) / slope_se(0.6, 1.0)) ** 2 == pytest.approx((60 ** 3 - 60) / (30 ** 3 - 30))
+    robot = default_robot().replace(**TRUTH)
+    sp = _sweep_space(robot)
+    short = {(c.world, c.duty): c for c in sp.candidates if c.duration == 0.3}
+    long = {(c.world, c.duty): c for c in sp.candidates if c.duration == 0.6}
+    assert short.keys() == long.keys() and len(short) + len(long) == len(sp.candidates)
+    assert sweep_hold(STEADY, 0.6) == pytest.approx(0.85) and sweep_hold(STEADY, 0.3) == pytest.approx(0.55)
+    names = planning_names(robot)
+    keys = list(short)
+    # the speeds alone (the currents' information grows only as the average: white noise per sample)
+    info = candidate_information(robot, [short[k] for k in keys] + [long[k] for k in keys], names, current=False)
+    ib = names.index("b")
+    for i, k in enumerate(keys):
+        if not info.usable[i]:
+            continue
+        gain = info.info[len(keys) + i][ib, ib] / info.info[i][ib, ib]
+        assert gain > 2 * long[k].robot_seconds / short[k].robot_seconds, (k, gain)
+    # a plan that must hold one level at the file's averaging time (a diagnostic floor) and tops up
+    # the same world at twice it
+    floor = next(short[k] for k in keys if k[1] == 0.3)
+    design = plan(robot, None, {"a": (0.0025, True), "c": (0.005, True)}, sp, required=[floor])
+    assert floor in {u.candidate for u in design.units}
+    files = {(u.candidate.world, u.candidate.duration) for u in design.units}
+    assert len(files) > len({u.candidate.world for u in design.units}), "no world with both averaging times"
+    assert design.robot_seconds == pytest.approx(sum(u.candidate.robot_seconds * u.reps for u in design.units)
+                                                 + 2 * sp.sweep_rest * len(files))
+    written = write_procedures(design.units, procedure_files(None), tmp_path, robot)
+    assert len(written) == len(files)
+    for _, path in written:
+        p = load_plan(path, robot, expect="upside_down_sweep")
+        assert any(math.isclose(p.settings["steady_state"]["average"], d) for _, d in files)

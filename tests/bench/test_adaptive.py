@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -295,11 +296,15 @@ def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan
     assert len(res.rounds) == 2 and fits["design_misfit"][0]["round"] == 2
     grid = fixed_grid_units(robot, files)
     ran: dict = {}
+
+    def step(label):  # a sweep level is the same step at either averaging time (the floor's is longer)
+        return re.sub(r" over [0-9.]+ s,", ",", label)
+
     for rd in res.rounds:
         for label in rd.ran:
             name, reps = label.rsplit(" x", 1)
-            ran[name] = ran.get(name, 0) + int(reps)
-    assert all(ran.get(u.candidate.label, 0) >= u.reps for u in grid)  # every step of the lab's grid ran
+            ran[step(name)] = ran.get(step(name), 0) + int(reps)
+    assert all(ran.get(step(u.candidate.label), 0) >= u.reps for u in grid)  # every step of the lab's grid ran
     assert sum(ran.values()) == sum(u.reps for u in grid)  # and nothing more (the floor is part of it)
     clean = run({}, tmp_path / "clean", 1)
     assert clean.fit is not None and clean.fit.misses_something() == []
@@ -360,3 +365,28 @@ def test_an_adaptive_campaign_from_a_previous_one_over_the_serial_path_says_so(c
     log = [json.loads(x) for x in (out / "design.jsonl").read_text().splitlines()]
     assert "previous campaign" in log[0]["why"]
     assert "planned from the previous campaign's values and noise" in (out / "report.md").read_text()
+
+
+def test_the_labs_grid_after_the_floor_leaves_out_the_levels_the_floor_ran_at_its_longer_average():
+    """When the model misses something the campaign runs the rest of the lab's grid; the diagnostic
+    floor held its sweep levels at twice the file's averaging time, and those levels are not run
+    again at the file's (the same duty, wheel set and direction pair)."""
+    from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files
+    from omnibench.bench.adaptive import rest_of_lab_grid
+    from omnibench.bench.campaign import procedure_files
+    from omnibench.model import default_robot
+
+    robot = default_robot()
+    files = procedure_files(None)
+    space = space_from_files(robot, files)
+    floor = diagnostic_floor(robot, files, space)
+    grid = fixed_grid_units(robot, files)
+    sweeps = [c for c in floor if c.procedure == "sweep"]
+    assert sweeps and all(c.duration == pytest.approx(0.6) for c in sweeps)
+    assert all(u.candidate.duration == pytest.approx(0.3) for u in grid if u.candidate.procedure == "sweep")
+    left = rest_of_lab_grid(grid, {c: 1 for c in floor}, None)
+    ran = {(c.world, c.duty) for c in sweeps}
+    left_sweeps = {(u.candidate.world, u.candidate.duty) for u in left if u.candidate.procedure == "sweep"}
+    grid_sweeps = {(u.candidate.world, u.candidate.duty) for u in grid if u.candidate.procedure == "sweep"}
+    assert left_sweeps == grid_sweeps - ran and left_sweeps  # the other wheel set's levels remain
+    assert sum(u.reps for u in left) == sum(u.reps for u in grid) - len(floor)

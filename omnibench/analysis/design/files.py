@@ -3,8 +3,9 @@
 The lab's files (procedures/*.toml or a --procedures folder) say what the lab owns and how it
 measures: the wheel sets it can mount, the payloads it can place, the steady-state settings,
 the run duration and settle time. A design is written as ordinary procedure files, one per
-world (a wheel set upside down; the ground with one payload) and duration, each a copy of the
-lab's file with only the levels, directions, wheel sets and payloads replaced; the runner
+world (a wheel set upside down; the ground with one payload) and duration (a sweep's: the time
+its speeds are averaged over), each a copy of the lab's file with only the levels, directions,
+wheel sets, payloads, durations and averaging time replaced; the runner
 executes them unchanged (`omnibench sweep --procedure FILE`, ...).
 """
 
@@ -19,7 +20,8 @@ from typing import Any, Mapping
 import tomli_w
 
 from omnibench.analysis.design.planner import Unit
-from omnibench.analysis.design.space import FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space, build_space
+from omnibench.analysis.design.space import (FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space,
+                                              build_space, sweep_hold)
 from omnibench.bench.procedure import load_plan
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}
@@ -91,7 +93,10 @@ def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder:
             sw["directions"] = ["forward", "backward"]
             sw["order"] = "ascending"
             data["sweep"] = sw
-            what = f"wheel set {world.wheel_set}, {len(sw['duties'])} levels both ways"
+            steady = dict(data.get("steady_state", {}))
+            steady["average"] = f"{duration:g} s"
+            data["steady_state"] = steady
+            what = f"wheel set {world.wheel_set}, {len(sw['duties'])} levels both ways, speeds over {duration:g} s"
         elif proc == "forward":
             runs = {k: v for k, v in data.get("runs", {}).items() if k not in ("duties", "voltages")}
             runs.update({"duties": [round(u.candidate.duty, 6) for u in us for _ in range(u.reps)],
@@ -114,7 +119,7 @@ def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder:
             data["simulated_operator"] = op
         path = folder / f"{prefix}{n:02d}_{fname}.toml"
         header = (f"# Written by `omnibench plan` from {Path(files[fname]).name}: only the levels, directions,\n"
-                  "# wheel sets and payloads differ from it. Run it with:\n"
+                  "# wheel sets, payloads, durations and the speed's averaging time differ from it. Run it with:\n"
                   f"#   omnibench {COMMAND_OF[fname]} --port PORT --procedure {path.name}\n")
         path.write_text(header + tomli_w.dumps(data), encoding="utf-8")
         load_plan(path, robot, expect=fname)  # the runner must accept it as is
@@ -127,7 +132,7 @@ def fixed_grid_units(robot: Any, files: Mapping[str, str | Path]) -> list[Unit]:
     so the design's information and cost model can price them too."""
     out: list[Unit] = []
     sweep = load_plan(files["upside_down_sweep"], robot, expect="upside_down_sweep")
-    hold = sweep.settings["steady_state"]["min_hold"] + sweep.settings["steady_state"]["window"] + 0.05
+    steady = sweep.settings["steady_state"]
     seen: dict[Candidate, Unit] = {}
 
     def put(c: Candidate) -> None:
@@ -140,7 +145,8 @@ def fixed_grid_units(robot: Any, files: Mapping[str, str | Path]) -> list[Unit]:
     for s in sweep.steps:
         if s.params["direction"] > 0:
             w = s.world
-            put(Candidate("sweep", w, duty=abs(s.params["duty"]), robot_seconds=2 * hold))
+            put(Candidate("sweep", w, duty=abs(s.params["duty"]), duration=steady["average"],
+                          robot_seconds=2 * sweep_hold(steady, steady["average"])))
     for fname in ("forward_runs", "lateral_runs"):
         plan = load_plan(files[fname], robot, expect=fname)
         for s in plan.steps:
@@ -172,7 +178,8 @@ def diagnostic_floor(robot: Any, files: Mapping[str, str | Path], space: Space) 
     middle duty (the fit frees C_r with forward runs; diagnosis reads them for a slope or a
     centre-of-mass offset). The planner leaves out a level at which the model predicts the wheel
     stuck (the lab's ±0.06 at the robot file's friction): the fit reads a level only where the wheel
-    turns, so the planner prices it at no information (docs/design.md)."""
+    turns, so the planner prices it at no information (docs/design.md). Sweep levels are held at
+    the longest averaging time the space offers (`_longest_average`)."""
     fixed = [u.candidate for u in fixed_grid_units(robot, files)]
     first = next((c.world.wheel_set for c in fixed if c.procedure == "sweep"), None)
     out = [c for c in fixed if c.procedure == "sweep" and c.world.wheel_set == first]
@@ -185,4 +192,13 @@ def diagnostic_floor(robot: Any, files: Mapping[str, str | Path], space: Space) 
         mid = sorted(fwd, key=lambda c: c.duty)[len(fwd) // 2]
         out.append(next((c for c in space.candidates if c.procedure == "forward" and c.duration == mid.duration
                          and abs(c.duty - mid.duty) < 1e-9), mid))
-    return [c for c in out if c in space.candidates]
+    return [_longest_average(c, space) if c.procedure == "sweep" else c for c in out if c in space.candidates]
+
+
+def _longest_average(c: Candidate, space: Space) -> Candidate:
+    """The space's twin of a sweep level with the longest averaging time: the floor's levels run
+    whatever their information, and a longer average is the cheapest information a level can add
+    (the speed's rounding error: 6-13 x the information for 1.55 x the hold at twice the average)."""
+    twins = [x for x in space.candidates if x.procedure == "sweep" and x.world == c.world
+             and abs(x.duty - c.duty) < 1e-9]
+    return max(twins, key=lambda x: x.duration, default=c)

@@ -66,13 +66,19 @@ def expected_speed_se(omega: float, duration: float, counts_per_rev: float, rate
     return _speed_se(w, round(float(duration), 6), float(counts_per_rev), float(rate))
 
 
+def sweep_average(c: Candidate) -> float:
+    """Time (s) a sweep candidate's speed is averaged over (its duration; the default if unset)."""
+    return c.duration if c.duration > 0 else STEADY_AVERAGE
+
+
 def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
     floor = quantisation_se(robot.counts_per_rev)
-    w_se = slope_se(STEADY_AVERAGE, floor)
-    i_se = CURRENT_NOISE / math.sqrt(STEADY_AVERAGE * TELEMETRY_HZ)
     sweep, forward, lateral = [], [], []
     for k, c in enumerate(cands):
         rid = f"candidate-{k}"
+        average = sweep_average(c)
+        w_se = slope_se(average, floor)
+        i_se = CURRENT_NOISE / math.sqrt(average * TELEMETRY_HZ)
         for s, u in enumerate(c.duties(robot)):
             if c.procedure == "sweep":
                 for j in range(4):
@@ -195,7 +201,7 @@ def _simulate_sensitivity(robot: Any, cands: Sequence[Candidate], names: list[st
     t = pred.table
     sweep_speed = (t["procedure"] == "sweep").to_numpy() & (t["signal"] == "omega").to_numpy()
     pred.sigma = pred.sigma.copy()
-    _speed_sigma(pred, obs, f0, robot.counts_per_rev)
+    _speed_sigma(pred, obs, f0, robot.counts_per_rev, [sweep_average(c) for c in cands])
     used = np.isfinite(f0) & np.isfinite(pred.sigma) & (pred.sigma > 0)
     # a sweep level too slow for the fit (stuck, inside the regularised sign) informs nothing
     slow = np.zeros(len(t), dtype=bool)
@@ -217,8 +223,10 @@ def _simulate_sensitivity(robot: Any, cands: Sequence[Candidate], names: list[st
     return _Sensitivity(J, cand_of, groups[rows])
 
 
-def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_rev: float) -> None:
-    """Each encoder speed's stated SE at its predicted speed and window (in place on pred.sigma)."""
+def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_rev: float,
+                 averages: Sequence[float]) -> None:
+    """Each encoder speed's stated SE at its predicted speed and window (in place on pred.sigma);
+    `averages`: each candidate's sweep averaging time, s."""
     t = pred.table
     sig = t["signal"].to_numpy()
     proc = t["procedure"].to_numpy()
@@ -230,7 +238,8 @@ def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_
     for k in np.flatnonzero(((proc == "sweep") & (sig == "omega")) | (sig == "w")):
         if not math.isfinite(f0[k]):
             continue
-        dur = STEADY_AVERAGE if proc[k] == "sweep" else window.get((t.at[k, "run"], int(t.at[k, "step"])))
+        run = str(t.at[k, "run"])
+        dur = averages[int(run.split("-")[1])] if proc[k] == "sweep" else window.get((run, int(t.at[k, "step"])))
         if dur:
             pred.sigma[k] = expected_speed_se(f0[k], dur, counts_per_rev)
 

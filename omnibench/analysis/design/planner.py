@@ -285,6 +285,10 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     worlds = list(dict.fromkeys(cands[k].world for k in np.flatnonzero(info.usable)))
     subsets = ([list(s) for n in range(1, len(worlds) + 1) for s in itertools.combinations(worlds, n)]
                if len(worlds) <= 7 else [worlds])
+    averages: dict[Any, set[float]] = {}  # each upside-down world's sweep averaging times
+    for c in cands:
+        if c.procedure == "sweep":
+            averages.setdefault(c.world, set()).add(c.duration)
     best = None
     setups = []
     for ws in subsets:
@@ -302,7 +306,10 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
             continue
         ks = np.array([k for k in np.flatnonzero(info.usable) if cands[k].world in ws and (room[k] > 0 or k in req)],
                       dtype=int)
-        bs, ba = budget_seconds - rest, budget_actions - sum(setup_acts.values())
+        # the rest of a second sweep file in a world whose levels come at two averaging times is kept
+        # out of the robot-time budget: the selection below does not see it
+        two = sum(1 for w in ws if len(averages.get(w, ())) > 1)
+        bs, ba = budget_seconds - rest - 2 * space.sweep_rest * two, budget_actions - sum(setup_acts.values())
         chosen, M, spent_s, spent_a, why = _greedy(M0, info.info, cands, ks, req, tidx, t2, costs, max_units, bs, ba,
                                                       room)
         chosen, M = _prune(chosen, M, infos=info.info, cands=cands, req=req, tidx=tidx, t2=t2, costs=costs)
@@ -322,8 +329,11 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
             chosen, M = _improve(chosen, M, M0=M0, infos=info.info, cands=cands, ks=ks, req=req, tidx=tidx, t2=t2,
                                  costs=costs, room=room, max_units=max_units, budget_s=bs, budget_a=ba)
         phi = _phi(M, tidx, t2) if len(tidx) else 0.0
-        total = costs.of(rest, setup_acts) + sum(costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) * r
-                                                 for k, r in chosen.items())
+        # a world's sweep levels at two averaging times are two files: each rests before its directions
+        extra = 2 * space.sweep_rest * (len(_sweep_files(chosen, cands)) - len({cands[k].world for k in chosen
+                                                                               if cands[k].procedure == "sweep"}))
+        total = costs.of(rest + extra, setup_acts) + sum(
+            costs.of(cands[k].robot_seconds, {"measure": cands[k].measurements}) * r for k, r in chosen.items())
         key = (round(phi - len(tidx), 6) > 1e-6, phi if phi > len(tidx) + 1e-6 else 0.0, total)
         if best is None or key < best[0]:
             best = (key, chosen, M, order, why)
@@ -341,8 +351,8 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
                     key=lambda k: (cands[k].procedure, cands[k].duration, cands[k].duty, cands[k].heading,
                                    cands[k].speed))
         units += [Unit(cands[k], chosen[k], ranks[k]) for k in ks]
-    robot_s = sum(u.candidate.robot_seconds * u.reps for u in units) + sum(
-        2 * space.sweep_rest for w in order if w.mode == "upside_down")
+    robot_s = sum(u.candidate.robot_seconds * u.reps for u in units) + 2 * space.sweep_rest * len(
+        _sweep_files(chosen, cands))
     acts = sequence_actions(order, sum(u.candidate.measurements * u.reps for u in units), start)
     se_after = dict(zip(names, _se(M, scale)))
     for p in names:
@@ -355,6 +365,11 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     return Design(names=names, values=values, targets=tabs, se_before=se_before, se_after=se_after, units=units,
                   robot_seconds=robot_s, actions=acts, cost=costs.of(robot_s, acts), refused=refused,
                   notes=notes, conditional=conditional)
+
+
+def _sweep_files(chosen: Mapping[int, int], cands: Sequence[Candidate]) -> set[tuple[Any, float]]:
+    """The sweep files a choice is written as: one per world and averaging time."""
+    return {(cands[k].world, cands[k].duration) for k in chosen if cands[k].procedure == "sweep"}
 
 
 def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: np.ndarray, required: Sequence[int],

@@ -58,7 +58,9 @@ class Candidate:
     """A pair of steps (both directions / both ways) in one world.
 
     procedure: sweep | forward | lateral. duty: sweep/forward duty magnitude; heading (rad),
-    speed (m/s): lateral; duration (s): timed runs. robot_seconds: board time of the pair.
+    speed (m/s): lateral; duration (s): timed runs' drive time, a sweep level's averaging time
+    (its speed is the slope over the last `duration` s of the hold). robot_seconds: board time
+    of the pair.
     measurements: tape measurements of the pair (each with a start-mark placement)."""
 
     procedure: str
@@ -74,7 +76,7 @@ class Candidate:
     @property
     def label(self) -> str:
         if self.procedure == "sweep":
-            return f"sweep ±{self.duty:.2f} duty, wheel set {self.world.wheel_set!r}"
+            return f"sweep ±{self.duty:.2f} duty over {self.duration:g} s, wheel set {self.world.wheel_set!r}"
         if self.procedure == "forward":
             return f"forward/backward at duty {self.duty:.2f} for {self.duration:g} s"
         return (f"lateral heading {math.degrees(self.heading):.0f} deg both ways at {self.speed:g} m/s "
@@ -137,15 +139,24 @@ def sequence_actions(worlds: list[World], measurements: int = 0, start: World | 
     return tot
 
 
+def sweep_hold(steady: Mapping[str, float], average: float) -> float:
+    """Board time (s) a sweep level is held in one direction when its speed is averaged over
+    `average` s: min_hold, then the longer of the steady-state window and the average, plus the
+    runner's check cadence."""
+    return steady.get("min_hold", 0.2) + max(steady.get("window", 0.3), average) + 0.05
+
+
 def build_space(robot: Any, *, wheel_sets: list[tuple[str, tuple[float, ...]]], payloads: list[float],
                 steady: Mapping[str, float], limits: Limits = Limits(), durations: tuple[float, ...] = (1.5, 3.0),
                 settle: float = 1.0, sweep_duties: tuple[float, ...] | None = None,
                 forward_duties: tuple[float, ...] | None = None,
                 headings_deg: tuple[float, ...] = (0, 30, 45, 60, 90),
-                speeds: tuple[float, ...] = (0.2, 0.3, 0.45)) -> Space:
-    """The candidates the lab can run, each within the limits (duty, stall current, floor)."""
+                speeds: tuple[float, ...] = (0.2, 0.3, 0.45), average_factors: tuple[float, ...] = (2.0,)) -> Space:
+    """The candidates the lab can run, each within the limits (duty, stall current, floor). A sweep
+    level is offered with the file's averaging time and `average_factors` times it (the encoder's
+    rounding error of the speed falls as average^-1.5, the hold grows by the extra average)."""
     cap = duty_cap(robot, limits)
-    hold = steady.get("min_hold", 0.2) + steady.get("window", 0.3) + 0.05
+    average = steady.get("average", 0.3)
     sweep_duties = sweep_duties or SWEEP_DUTIES
     forward_duties = forward_duties or FORWARD_DUTIES
     out: list[Candidate] = []
@@ -156,7 +167,9 @@ def build_space(robot: Any, *, wheel_sets: list[tuple[str, tuple[float, ...]]], 
             if u > cap + 1e-12:
                 excluded.append(f"sweep duty {u:g}: above the duty cap {cap:.2f} (max_duty, max_current at stall)")
                 continue
-            out.append(Candidate("sweep", world, duty=u, robot_seconds=2 * hold))
+            for f in (1.0, *average_factors):
+                avg = round(average * f, 6)
+                out.append(Candidate("sweep", world, duty=u, duration=avg, robot_seconds=2 * sweep_hold(steady, avg)))
     ground = World("ground", wheel_sets[0][0] if wheel_sets else "standard", None, 0.0)
     # speed on the ground: the no-load speed u V / k_e r (friction only slows it): floor check
     for d in durations:
