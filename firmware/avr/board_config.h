@@ -19,13 +19,16 @@
 #define MAX_TELEMETRY_HZ 500         /* HELLO max_telemetry_rate; CONFIGURE above it is BAD_VALUE */
 #endif
 
-/* Sabertooth drivers (packet serial on USART1, TX1 = pin 18). Wheel -> {address, channel,
-   sign}: sign -1 means the wheel turns forward for a "backward" driver command. */
+/* Sabertooth drivers (packet serial on S1; sabertooth.h). Wheel -> {address, channel, sign}:
+   sign -1 means the wheel turns forward for a "backward" driver command. */
 #ifndef MOTOR_MAP
 #define MOTOR_MAP {{128, 2, -1}, {128, 1, -1}, {129, 1, 1}, {129, 2, 1}}
 #endif
+#ifndef SABERTOOTH_S1_PIN
+#define SABERTOOTH_S1_PIN 6          /* 6: software UART on PH3 (the 2019 wiring); 18: USART1 TX1 */
+#endif
 #ifndef SABERTOOTH_BAUD
-#define SABERTOOTH_BAUD 38400UL      /* fastest packet-serial rate of the Sabertooth 2x5/2x12/2x25/2x60 */
+#define SABERTOOTH_BAUD 9600UL       /* the drivers' factory rate, the only one known to work on the robot */
 #endif
 #ifndef SABERTOOTH_TIMEOUT_MS
 #define SABERTOOTH_TIMEOUT_MS 300    /* driver stops by itself after this silence (0 = not set) */
@@ -33,13 +36,16 @@
 #ifndef SABERTOOTH_REFRESH_MS
 #define SABERTOOTH_REFRESH_MS 100    /* resend every channel this often (feeds the driver timeout) */
 #endif
-#ifndef SABERTOOTH_REBAUD_MS
-#define SABERTOOTH_REBAUD_MS 2000    /* second 0xAA for drivers that powered up with the board */
+#ifndef SABERTOOTH_SETUP_MS
+#define SABERTOOTH_SETUP_MS 1000     /* resend 0xAA + the timeout packets this often (survive a driver power cycle) */
 #endif
 
 /* LS7366R counters: counter sign per wheel (FR and RR count backwards on the robot). */
 #ifndef ENCODER_SIGNS
 #define ENCODER_SIGNS {1, -1, 1, -1}
+#endif
+#ifndef ENCODER_CS_BITS
+#define ENCODER_CS_BITS {_BV(PL3), _BV(PL2), _BV(PL1), _BV(PL0)}  /* pins 46, 47, 48, 49 */
 #endif
 
 /* Analog inputs (AVCC reference). */

@@ -6,7 +6,7 @@
 #define TICK_COUNTS 1000u             /* Timer1 at F_CPU/8 = 2 MHz: a tick every 500 µs */
 #define ARM_WITHIN_US 30000L          /* arm the compare less than one overflow (32768 µs) ahead */
 
-static uint32_t wraps;                /* counter wraps seen, each 32768 µs (interrupts off) */
+static uint32_t wrap_us;              /* 32768 µs per counter wrap seen (interrupts off) */
 static uint16_t last_count;           /* the counter as last read: a smaller one means a wrap */
 static volatile uint8_t ticks;
 static volatile uint8_t pending;      /* a sample is scheduled but not armed yet */
@@ -28,9 +28,9 @@ void clock_init(void) {
 static uint32_t now_locked(void) {
     uint16_t t = TCNT1;
     if (t < last_count)
-        wraps++;
+        wrap_us += 32768UL;               /* an add, not a 32-bit shift: interrupts stay off briefly */
     last_count = t;
-    return (wraps << 15) + (t >> 1);
+    return wrap_us + (t >> 1);
 }
 
 /* Board time never steps back (the last value read is a floor; a safety net only). */
@@ -88,7 +88,9 @@ void clock_cancel(void) {
     }
 }
 
-ISR(TIMER1_COMPB_vect) {
+/* Both Timer1 interrupts may read the four counters (about 60 µs of SPI): they run with
+   interrupts enabled so that the motor line's bit interrupt (sabertooth.c) is never late. */
+ISR(TIMER1_COMPB_vect, ISR_NOBLOCK) {
     OCR1B += TICK_COUNTS;
     (void)now_locked();  /* keeps the wrap count current even when nobody asks the time */
     if (ticks < 255)
@@ -96,7 +98,7 @@ ISR(TIMER1_COMPB_vect) {
     try_arm();
 }
 
-ISR(TIMER1_COMPA_vect) {
+ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
     TIMSK1 &= (uint8_t)~_BV(OCIE1A);
     clock_sample_fired(sample_at);
 }

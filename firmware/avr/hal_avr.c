@@ -43,7 +43,7 @@ void hal_cancel_sample(void) {
 }
 
 /* From the Timer1 compare interrupt, at board time at_us: latch the four counters at one
-   instant (LOAD_OTR to all chips at once), read them and the latest analog values. */
+   instant (LOAD_OTR to each chip, about 3 µs apart), read them and the latest analog values. */
 void clock_sample_fired(uint32_t at_us) {
     ls7366r_latch_all();
     sample.time_us = at_us;

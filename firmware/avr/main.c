@@ -66,14 +66,10 @@ int main(void) {
     ls7366r_init();
     analog_init();
     sei();
-    sabertooth_baud();
-    sabertooth_refresh();
     uint32_t boot_id = draw_boot_id();
     core_boot(&core, &id, boot_id, clock_us());
     wdt_enable(WDTO_120MS);  /* a hung firmware resets (and the drivers' timeout stops them) */
-    uint16_t refresh_in = 0, rebaud_in = SABERTOOTH_REBAUD_MS * 1000UL / CLOCK_TICK_US;
     uint8_t odd = 0;
-    uint8_t rebauded = 0;
     for (;;) {
         wdt_reset();
         uint8_t buf[32];
@@ -85,14 +81,7 @@ int main(void) {
             tick = 1;
             if ((odd ^= 1))
                 analog_start_round();  /* every millisecond */
-            if (refresh_in-- == 0) {   /* countdowns: no division in the loop */
-                refresh_in = SABERTOOTH_REFRESH_MS * 1000UL / CLOCK_TICK_US - 1;
-                sabertooth_refresh();
-            }
-            if (!rebauded && --rebaud_in == 0) {
-                rebauded = 1;
-                sabertooth_baud();
-            }
+            sabertooth_tick();         /* start-up wait (1.5 s, 0xAA, 0.5 s), refresh, setup resends */
         }
         /* the core's own work (faults, watchdog, telemetry) at each 500 µs tick (the watchdog's
            resolution: its stop packets then leave within timeout + 0.5 ms + 4 packets), sample and host

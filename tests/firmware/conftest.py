@@ -29,3 +29,13 @@ def fil_elf(tmp_path_factory):
     build = make("all", tmp_path_factory.mktemp("fw-fil"), BATTERY_CURRENT="hall", MOTOR_CURRENT="hall")
     make("fil", build)
     return build / "omnibot.elf"
+
+
+@pytest.fixture(scope="session")
+def default_build(tmp_path_factory):
+    """The firmware with every build setting at its default (the robot as wired in 2019), and
+    pinrec, the bare-chip pin recorder (firmware/sim/pinrec.c)."""
+    need("avr", "fil")
+    build = make("all", tmp_path_factory.mktemp("fw-default"))
+    make("pinrec", build)
+    return build
