@@ -1,16 +1,28 @@
 /* Firmware-in-the-loop harness: the board firmware (.elf) on a simulated ATmega2560 (simavr),
    with the robot's electronics around it. Built as a shared library and stepped in lockstep
-   by omnibench/sim/firmware/fil.py, which supplies the physics (omnibench's plant):
+   by omnibench/sim/firmware/fil.py, which supplies the physics (omnibench's plant) and the
+   robot's wiring (a file in omnibench/sim/firmware/robots/, never the firmware build's settings).
 
    - UART0 (host link): bytes from the host are queued and fed at the line rate (simavr's
      UART paces them, XON/XOFF); bytes the firmware sends are collected with their cycle.
-   - USART1 (Sabertooth packet serial): decoded into packets (address, command, value)
-     stamped with the cycle of their last byte; bad checksums are counted.
-   - SPI + PORTL bits 3..0 (pins 46..49): four LS7366R counters. Each counts
-     floor(c0 + rate * (cycle - cycle0) / F_CPU) from the counts and rates the plant gave at
-     cycle0, so a latch between two lockstep updates reads an extrapolated count.
+   - The Sabertooth S1 line, as the drivers hear it: either a pin (e.g. pin 6, PH3), whose
+     levels are sampled mid-bit at the drivers' rate from each falling edge (start bit,
+     8 data bits, stop bit: a byte at another rate is garbage or a framing error, as for the
+     driver), or TX1 (pin 18), where simavr's USART1 gives whole bytes: they count only if the
+     USART's programmed rate is within 3 % of the drivers'. An autobauding driver hears
+     nothing until an 0xAA, whose bit time then sets its rate. The bytes go to the caller,
+     which models the drivers (packets, checksum, serial timeout).
+   - Activity the robot does not listen to is counted too (edges on pin 6, bytes on USART1),
+     so a test can say where the firmware talks when the drivers hear nothing.
+   - SPI + port L (pins 42..49): LS7366R counters at the chip-select pins the robot has
+     them on. Each counts floor(c0 + rate * (cycle - cycle0) / F_CPU) from the counts and
+     rates the plant gave at cycle0, so a latch between two lockstep updates reads an
+     extrapolated count. Every selected chip takes the instruction (MOSI is shared); a byte
+     clocked with several chips selected is counted as MISO contention (each selected chip
+     drives MISO then: the datasheet gives MISO high impedance only while SS is high) and
+     reads as the AND of their outputs.
    - ADC: millivolts per channel, set by the caller.
-   - Pin 7 (PH4): the drivers' enable line, read by the caller.
+   - Output pins (e.g. pin 7, PH4, the drivers' enable), read by the caller.
    - CPU load: cycles spent asleep are counted by our sleep callback (which never sleeps). */
 #include <math.h>
 #include <stdint.h>
@@ -27,7 +39,6 @@
 
 #define F_CPU 16000000.0
 #define RING 65536
-#define PACKETS 8192
 
 typedef struct {
     uint8_t state;       /* 0 idle (deselected), 1 expects instruction, 2 reading OTR/CNTR, 3 writing */
@@ -37,12 +48,29 @@ typedef struct {
     uint64_t cycle0;
     int64_t zero;        /* count at the last CLR_CNTR */
     uint8_t mdr0, mdr1;
+    uint8_t pin_bit;     /* port L bit of its chip select (0xFF: no chip) */
 } ls7366r_t;
 
+#define LINE_BYTES 8192
 typedef struct {
-    uint64_t cycle;
-    uint8_t address, command, value;
-} packet_t;
+    int mode;            /* 0 off, 1 a pin sampled bit by bit, 2 USART1's bytes (TX1) */
+    char port;
+    int bit;
+    double bit_cycles;   /* the drivers' bit time (0: autobaud, not yet set) */
+    int autobaud;
+    int watching;        /* the pin's notify is registered */
+    int level;           /* the pin's level now (idle high) */
+    int busy;            /* a byte is being sampled */
+    uint64_t start;      /* cycle of its start bit's falling edge */
+    int sampled;         /* bits sampled so far */
+    uint16_t shift;
+    uint64_t ab_edges[10];  /* autobaud: edges of the candidate 0xAA */
+    int ab_n;
+    uint8_t bytes[LINE_BYTES];
+    uint64_t cycles[LINE_BYTES];
+    uint32_t head, tail, lost;
+    uint32_t framing_errors, wrong_rate_bytes;
+} line_t;
 
 typedef struct {
     avr_t *avr;
@@ -55,13 +83,13 @@ typedef struct {
     uint8_t out[RING];
     uint64_t out_cycle[RING];
     uint32_t out_head, out_tail, out_lost;
-    /* Sabertooth */
-    uint8_t pk[4], pk_n;
-    packet_t packets[PACKETS];
-    uint32_t pkt_head, pkt_tail, pkt_bad, pkt_lost;
+    /* Sabertooth S1 */
+    line_t line;
+    uint32_t pin6_edges, usart1_bytes;
     /* LS7366R */
     ls7366r_t enc[4];
-    uint8_t cs_low;      /* bit i: chip i (pin 46 + i) selected */
+    uint8_t cs_low;      /* port L bits now low */
+    uint32_t contention; /* SPI bytes clocked with several chips selected */
     uint64_t sleep_cycles;
 } fil_t;
 
@@ -116,34 +144,120 @@ static void uart0_out(struct avr_irq_t *irq, uint32_t v, void *p) {
     f->out_head++;
 }
 
-/* ------------------------------------------------------------------ USART1: Sabertooth */
+/* ------------------------------------------------------------------ the Sabertooth S1 line */
+static void line_put(fil_t *f, uint8_t b) {
+    line_t *l = &f->line;
+    if (l->head - l->tail >= LINE_BYTES) {
+        l->lost++;
+        return;
+    }
+    l->bytes[l->head % LINE_BYTES] = b;
+    l->cycles[l->head % LINE_BYTES] = f->avr->cycle;
+    l->head++;
+}
+
+/* One sample per bit time, mid-bit, from the start bit's falling edge (as a UART receiver). */
+static avr_cycle_count_t line_sample(avr_t *avr, avr_cycle_count_t when, void *param) {
+    (void)avr;
+    (void)when;
+    fil_t *f = param;
+    line_t *l = &f->line;
+    int k = l->sampled++;
+    if (k == 0 && l->level) {           /* a glitch, not a start bit */
+        l->busy = 0;
+        return 0;
+    }
+    if (k >= 1 && k <= 8)
+        l->shift |= (uint16_t)(l->level << (k - 1));
+    if (k == 9) {
+        l->busy = 0;
+        if (!l->level)
+            l->framing_errors++;         /* no stop bit: the driver drops the byte */
+        else
+            line_put(f, (uint8_t)l->shift);
+        return 0;
+    }
+    return l->start + (avr_cycle_count_t)((k + 1.5) * l->bit_cycles + 0.5);
+}
+
+/* Autobaud: the edges of 0xAA framed 8N1 fall at 0, 2, 3, 4, 5, 6, 7, 8 bit times. */
+static void autobaud_edge(fil_t *f) {
+    line_t *l = &f->line;
+    if (l->ab_n == 0 && l->level)
+        return;
+    if (l->ab_n > 0 && f->avr->cycle - l->ab_edges[0] > 16000000ULL / 1200 * 10) {
+        l->ab_n = 0;                     /* too slow for any rate: start over */
+        if (l->level)
+            return;
+    }
+    l->ab_edges[l->ab_n++] = f->avr->cycle;
+    if (l->ab_n < 8)
+        return;
+    double bit = (double)(l->ab_edges[7] - l->ab_edges[0]) / 8.0;
+    static const double at[8] = {0, 2, 3, 4, 5, 6, 7, 8};
+    int ok = 1;
+    for (int i = 1; i < 8; i++)
+        if (fabs((double)(l->ab_edges[i] - l->ab_edges[0]) / bit - at[i]) > 0.25)
+            ok = 0;
+    l->ab_n = 0;
+    if (ok)
+        l->bit_cycles = bit;             /* the rate is set; the 0xAA itself is not a packet byte */
+}
+
+static void line_pin(struct avr_irq_t *irq, uint32_t v, void *p) {
+    (void)irq;
+    fil_t *f = p;
+    line_t *l = &f->line;
+    int level = v ? 1 : 0;
+    if (level == l->level)
+        return;
+    l->level = level;
+    if (l->mode != 1)
+        return;
+    if (l->bit_cycles == 0) {
+        autobaud_edge(f);
+        return;
+    }
+    if (!level && !l->busy) {
+        l->busy = 1;
+        l->start = f->avr->cycle;
+        l->sampled = 0;
+        l->shift = 0;
+        avr_cycle_timer_register(f->avr, (avr_cycle_count_t)(0.5 * l->bit_cycles + 0.5), line_sample, f);
+    }
+}
+
+static void pin6_edge(struct avr_irq_t *irq, uint32_t v, void *p) {
+    (void)irq;
+    (void)v;
+    ((fil_t *)p)->pin6_edges++;
+}
+
+/* USART1's programmed rate (UBRR1, U2X1). */
+static double usart1_baud(fil_t *f) {
+    uint16_t ubrr = (uint16_t)(f->avr->data[0xCC] | (f->avr->data[0xCD] << 8));  /* UBRR1L/H */
+    int u2x = (f->avr->data[0xC8] >> 1) & 1;                                      /* UCSR1A.U2X1 */
+    return F_CPU / ((u2x ? 8.0 : 16.0) * (ubrr + 1));
+}
+
 static void uart1_out(struct avr_irq_t *irq, uint32_t v, void *p) {
     (void)irq;
     fil_t *f = p;
-    uint8_t b = (uint8_t)v;
-    if (b & 0x80) {  /* an address byte starts a packet (command, value, checksum are < 128) */
-        f->pk[0] = b;
-        f->pk_n = 1;
+    line_t *l = &f->line;
+    f->usart1_bytes++;
+    if (l->mode != 2)
+        return;
+    double rate = usart1_baud(f);
+    if (l->bit_cycles == 0) {            /* autobaud: an 0xAA at any rate sets it */
+        if ((uint8_t)v == 0xAA)
+            l->bit_cycles = F_CPU / rate;
         return;
     }
-    if (f->pk_n == 0 || f->pk_n >= 4)
-        return;
-    f->pk[f->pk_n++] = b;
-    if (f->pk_n < 4)
-        return;
-    if (((f->pk[0] + f->pk[1] + f->pk[2]) & 0x7F) != f->pk[3]) {
-        f->pkt_bad++;
+    if (fabs(F_CPU / rate / l->bit_cycles - 1.0) > 0.03) {
+        l->wrong_rate_bytes++;           /* at another rate the driver reads garbage */
         return;
     }
-    if (f->pkt_head - f->pkt_tail >= PACKETS) {
-        f->pkt_lost++;
-        return;
-    }
-    packet_t *k = &f->packets[f->pkt_head++ % PACKETS];
-    k->cycle = f->avr->cycle;
-    k->address = f->pk[0];
-    k->command = f->pk[1];
-    k->value = f->pk[2];
+    line_put(f, (uint8_t)v);
 }
 
 /* ------------------------------------------------------------------ SPI: LS7366R x4 */
@@ -153,21 +267,25 @@ static int64_t count_now(fil_t *f, int i) {
     return (int64_t)floor(c) - e->zero;
 }
 
-static void cs_pin(fil_t *f, int chip, int low) {
-    ls7366r_t *e = &f->enc[chip];
-    if (low && !(f->cs_low & (1 << chip))) {
-        e->state = 1;
-        e->index = 0;
+/* Port L changed: each chip follows its own chip-select bit. */
+static void port_l(struct avr_irq_t *irq, uint32_t v, void *p) {
+    (void)irq;
+    fil_t *f = p;
+    uint8_t low = (uint8_t)~v;
+    for (int i = 0; i < 4; i++) {
+        ls7366r_t *e = &f->enc[i];
+        if (e->pin_bit > 7)
+            continue;
+        int was = (f->cs_low >> e->pin_bit) & 1, is = (low >> e->pin_bit) & 1;
+        if (is && !was) {
+            e->state = 1;
+            e->index = 0;
+        }
+        if (!is)
+            e->state = 0;
     }
-    if (!low)
-        e->state = 0;
-    f->cs_low = (uint8_t)(low ? (f->cs_low | (1 << chip)) : (f->cs_low & ~(1 << chip)));
+    f->cs_low = low;
 }
-
-static void cs_pin0(struct avr_irq_t *irq, uint32_t v, void *p) { (void)irq; cs_pin(p, 0, !v); }
-static void cs_pin1(struct avr_irq_t *irq, uint32_t v, void *p) { (void)irq; cs_pin(p, 1, !v); }
-static void cs_pin2(struct avr_irq_t *irq, uint32_t v, void *p) { (void)irq; cs_pin(p, 2, !v); }
-static void cs_pin3(struct avr_irq_t *irq, uint32_t v, void *p) { (void)irq; cs_pin(p, 3, !v); }
 
 static uint8_t chip_byte(fil_t *f, int i, uint8_t b) {
     ls7366r_t *e = &f->enc[i];
@@ -198,10 +316,16 @@ static uint8_t chip_byte(fil_t *f, int i, uint8_t b) {
 static void spi_out(struct avr_irq_t *irq, uint32_t v, void *p) {
     (void)irq;
     fil_t *f = p;
-    uint8_t reply = 0;
+    uint8_t reply = 0xFF;                /* nobody drives MISO: the pull-up reads 1s */
+    int selected = 0;
     for (int i = 0; i < 4; i++)
-        if (f->cs_low & (1 << i))
-            reply |= chip_byte(f, i, (uint8_t)v);  /* several selected: MISO lines wired-or */
+        if (f->enc[i].pin_bit <= 7 && (f->cs_low >> f->enc[i].pin_bit) & 1) {
+            uint8_t r = chip_byte(f, i, (uint8_t)v);
+            reply = selected ? (uint8_t)(reply & r) : r;
+            selected++;
+        }
+    if (selected > 1)
+        f->contention++;
     avr_raise_irq(avr_io_getirq(f->avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_INPUT), reply);
 }
 
@@ -262,6 +386,10 @@ fil_t *fil_open(const char *elf, char *err, int errlen) {
     }
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart0_out, f);
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_UART_GETIRQ('1'), UART_IRQ_OUTPUT), uart1_out, f);
+    avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_IOPORT_GETIRQ('H'), 3), pin6_edge, f);
+    f->line.level = 1;
+    for (int i = 0; i < 4; i++)
+        f->enc[i].pin_bit = 0xFF;
     avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_SPI_GETIRQ(0), SPI_IRQ_OUTPUT), spi_out, f);
     {
         avr_io_addr_t spdr = 0x4E;  /* ATmega2560 SPDR (data address) */
@@ -269,9 +397,8 @@ fil_t *fil_open(const char *elf, char *err, int errlen) {
         if (spi && spi->r_spdr == spdr)
             f->avr->io[AVR_DATA_TO_IO(spdr)].w.c = spdr_write;
     }
-    void (*cs[4])(struct avr_irq_t *, uint32_t, void *) = {cs_pin0, cs_pin1, cs_pin2, cs_pin3};
-    for (int i = 0; i < 4; i++)  /* pins 46..49 = PL3..PL0 */
-        avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 3 - i), cs[i], f);
+    avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_IOPORT_GETIRQ('L'), IOPORT_IRQ_PIN_ALL), port_l, f);
+    f->cs_low = 0;
     return f;
 }
 
@@ -318,22 +445,56 @@ int fil_host_read(fil_t *f, uint8_t *buf, uint64_t *cycles, int max) {
     return n;
 }
 
-int fil_packets(fil_t *f, uint64_t *cycle, uint8_t *address, uint8_t *command, uint8_t *value, int max) {
+/* The S1 line as the robot wires it: mode 1 = pin (port letter, bit) sampled at `baud`,
+   mode 2 = USART1 (TX1); autobaud: the rate comes from the first 0xAA. */
+void fil_s1_config(fil_t *f, int mode, char port, int bit, double baud, int autobaud) {
+    line_t *l = &f->line;
+    l->mode = mode;
+    l->port = port;
+    l->bit = bit;
+    l->autobaud = autobaud;
+    l->bit_cycles = autobaud ? 0 : F_CPU / baud;
+    l->ab_n = 0;
+    if (mode == 1 && !l->watching++)
+        avr_irq_register_notify(avr_io_getirq(f->avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit), line_pin, f);
+}
+
+/* Bytes the drivers received on S1, with the cycle each was complete. */
+int fil_s1_bytes(fil_t *f, uint8_t *bytes, uint64_t *cycles, int max) {
+    line_t *l = &f->line;
     int n = 0;
-    while (n < max && f->pkt_tail != f->pkt_head) {
-        packet_t *k = &f->packets[f->pkt_tail++ % PACKETS];
-        cycle[n] = k->cycle;
-        address[n] = k->address;
-        command[n] = k->command;
-        value[n] = k->value;
+    while (n < max && l->tail != l->head) {
+        bytes[n] = l->bytes[l->tail % LINE_BYTES];
+        cycles[n] = l->cycles[l->tail % LINE_BYTES];
+        l->tail++;
         n++;
     }
     return n;
 }
 
-uint32_t fil_packets_bad(fil_t *f) { return f->pkt_bad; }
+/* The rate the drivers listen at now (0: an autobauding driver still waits for 0xAA). */
+double fil_s1_baud(fil_t *f) { return f->line.bit_cycles > 0 ? F_CPU / f->line.bit_cycles : 0; }
 
-/* The four counters' plant counts (raw counter sense) and rates (counts/s) as of now. */
+/* Counters for diagnosis: [0] S1 framing errors, [1] S1 bytes at a wrong USART rate, [2] level
+   changes on pin 6 (PH3), [3] bytes the firmware wrote to USART1, [4] SPI bytes with several
+   chips selected, [5] S1 bytes lost (caller too slow), [6] USART1's programmed rate (baud). */
+void fil_counters(fil_t *f, double *out) {
+    out[0] = f->line.framing_errors;
+    out[1] = f->line.wrong_rate_bytes;
+    out[2] = f->pin6_edges;
+    out[3] = f->usart1_bytes;
+    out[4] = f->contention;
+    out[5] = f->line.lost;
+    out[6] = usart1_baud(f);
+}
+
+/* LS7366R chip i sits on Arduino pin pins[i] (42..49, port L); another value: no chip. */
+void fil_encoder_pins(fil_t *f, const int *pins) {
+    for (int i = 0; i < 4; i++)
+        f->enc[i].pin_bit = (uint8_t)(pins[i] >= 42 && pins[i] <= 49 ? 49 - pins[i] : 0xFF);
+}
+
+/* The four chips' plant counts (raw counter sense) and rates (counts/s) as of now. */
 void fil_set_counters(fil_t *f, const double *counts, const double *rates) {
     for (int i = 0; i < 4; i++) {
         f->enc[i].c0 = counts[i];
@@ -346,12 +507,12 @@ void fil_set_adc_mv(fil_t *f, int channel, uint32_t mv) {
     avr_raise_irq(avr_io_getirq(f->avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + channel), mv);
 }
 
-/* Pin 7 (PH4): 1 if driven high (drivers enabled). */
-int fil_pin7(fil_t *f) {
+/* An output pin (port letter, bit): 1 if driven high. */
+int fil_pin_high(fil_t *f, char port, int bit) {
     avr_ioport_state_t st;
-    if (avr_ioctl(f->avr, AVR_IOCTL_IOPORT_GETSTATE('H'), &st) != 0)
+    if (avr_ioctl(f->avr, AVR_IOCTL_IOPORT_GETSTATE(port), &st) != 0)
         return 0;
-    return (st.port >> 4) & st.ddr >> 4 & 1;
+    return (st.port >> bit) & (st.ddr >> bit) & 1;
 }
 
 /* Profiling aid: run until `cycle`, adding the cycles of each instruction to hist[pc / 2]

@@ -30,8 +30,11 @@ def command() -> None:
 @click.option("--ammeter", is_flag=True, help="Also serve a SCPI ammeter on a second pseudo-terminal (its path is line 2).")
 @click.option("--firmware", type=NonEmptyPath(dir_okay=False), default=None,
               help="Run this board firmware (.elf, make -C firmware) in simavr instead of the simulated board.")
+@click.option("--robot", default=None, metavar="NAME|FILE.toml",
+              help="With --firmware: the robot wiring the chip is connected to (omnibench/sim/firmware/robots/; "
+                   "default omnibot-2019, the robot as wired).")
 def serve(world_file: str | None, seed: int | None, clock: str, speed: float | None, settings: tuple[str, ...],
-          status_file: str | None, ammeter: bool, firmware: str | None) -> None:
+          status_file: str | None, ammeter: bool, firmware: str | None, robot: str | None) -> None:
     """Serve the simulated board on a pseudo-terminal until interrupted.
 
     Prints the device path on the first line of stdout (the ammeter's on the second with
@@ -54,13 +57,15 @@ def serve(world_file: str | None, seed: int | None, clock: str, speed: float | N
         params[key.strip()] = value.strip()
     _, world, _ = world_from_url("sim://omnibot?" + urlencode(params))
     board = None
+    if robot is not None and firmware is None:
+        raise UserError("--robot describes the wiring around a firmware: give --firmware too")
     if firmware is not None:
         from omnibench.sim.firmware.build import require
 
         require("fil")
         from omnibench.sim.firmware.board import FirmwareBoard
 
-        board = FirmwareBoard(world, firmware)
+        board = FirmwareBoard(world, firmware, robot)
         board.max_wall_s = 0.02  # stay responsive when the machine is slower than real time
     from omnibench.sim.pty_server import run_server  # imports the physics: after checking input
 

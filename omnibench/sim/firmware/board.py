@@ -3,9 +3,13 @@
 `FirmwareBoard` has the interface of `SimBoard` (feed / advance_to / take_output / status),
 so `omnibench sim serve --firmware X.elf` serves it on a pseudo-terminal with the same loop.
 Lockstep, as in flight-controller SITL: the chip runs one step (1 ms of board time), the
-Sabertooth packets it sent in that step set the wheel duties from the instant each packet
+bytes the drivers decoded on their S1 line in that step (robot.py: the robot's own wiring,
+never the firmware build's settings) set the driver outputs from the instant each packet
 ended, the plant integrates to the end of the step, and the counters and analog inputs are
 updated from the new state (the counters extrapolate within the step with the wheel speeds).
+
+The robot is powered before the host connects: the rig runs the firmware through its start-up
+(STARTUP_US: the drivers' 1.5 s + 0.5 s wait) and drops what it sent meanwhile.
 
 The rig around the board also plays the simulated operator and tape measure, as a person
 at the real robot would: the firmware answers the simulator-only messages UNSUPPORTED (it
@@ -16,7 +20,6 @@ board's frames so its `seq` stays continuous (gaps the firmware makes are kept).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import threading
@@ -31,45 +34,44 @@ from omnibench.link.codec import Codec
 from omnibench.link.framing import Deframer, FrameError, decode_chunk, encode_frame
 from omnibench.link.spec import load_protocol
 from omnibench.sim.firmware.fil import F_CPU, Harness
+from omnibench.sim.firmware.robot import MEGA_PINS, RobotWiring, SabertoothLine, load_robot
 from omnibench.sim.plant import Plant
 from omnibench.sim.sensors import Sensors
 from omnibench.sim.world import World
 
 STEP_US = 1000          # lockstep period, µs of board time
+STARTUP_US = 2_100_000  # run before serving: the firmware's driver start-up (1.5 s, 0xAA, 0.5 s) is over
 CYCLES_PER_US = F_CPU // 1_000_000
 MODES = ("ground", "upside_down")
 _NO_STATE = ("PING", "HELLO_REQ", "SIM_GET_TRUTH", "SIM_SET_WORLD")
 
 
-def build_config(elf: Path) -> dict[str, Any]:
-    """The build settings written beside the .elf by the Makefile (omnibot.config.json)."""
-    if not elf.is_file():
-        raise UserError(f"no firmware at {elf} (build it with: make -C firmware)")
-    cfg = elf.with_suffix(".config.json")
-    if not cfg.exists():
-        raise UserError(f"{cfg} is missing: build the firmware with make -C firmware (it writes it)")
-    return json.loads(cfg.read_text())
-
-
 class FirmwareBoard:
     """The firmware in simavr plus the plant, with SimBoard's interface."""
 
-    def __init__(self, world: World, elf: str | Path) -> None:
+    def __init__(self, world: World, elf: str | Path, robot: str | Path | RobotWiring | None = None,
+                 startup_us: int = STARTUP_US) -> None:
         self.world = world
         self.elf = Path(elf)
-        self.config = build_config(self.elf)
+        if not self.elf.is_file():
+            raise UserError(f"no firmware at {self.elf} (build it with: make -C firmware)")
+        self.wiring = robot if isinstance(robot, RobotWiring) else load_robot(robot)
         self.spec = load_protocol(world.protocol)
         self.codec = Codec(self.spec)
         self.lock = threading.RLock()
         self.chip = Harness(self.elf)
+        w = self.wiring
+        self.chip.s1_config(None if w.s1_pin == 18 else MEGA_PINS[w.s1_pin], w.baud, w.autobaud)
+        self.chip.encoder_pins([wh.encoder_cs for wh in w.wheels])
+        self.enable_pin = MEGA_PINS[w.enable_pin]
+        self.line = SabertoothLine(w.addresses)
+        self.encoder_signs = np.array([wh.encoder_sense for wh in w.wheels], dtype=float)
         seeds = np.random.SeedSequence(world.seed).spawn(2)
         self.rng = np.random.default_rng(seeds[0])
         self.robot = world.robot()
         self.plant = Plant(self.robot, world.scenario(), world.dt)
         self.sensors = Sensors(world.sensors, self.robot.counts_per_rev, np.random.default_rng(seeds[1]))
-        self.motor_map = [tuple(m) for m in self.config["motor_map"]]
-        self.encoder_signs = np.asarray(self.config["encoder_signs"], dtype=float)
-        self.channel = {(a, c): 0.0 for a, c, _ in self.motor_map}   # driver channel outputs, [-1, 1]
+        self.motor_map = [(wh.driver, wh.channel, wh.sense) for wh in w.wheels]  # the robot's, per wheel
         self.clock_us = 0
         self.disconnected = False
         self.wrong_baud = False
@@ -90,6 +92,15 @@ class FirmwareBoard:
         self.last_command = "BOOT"
         self.host_frames = 0
         self._update_inputs()
+        if startup_us:
+            self.advance_to(startup_us, step_us=50_000)  # wheels at rest, no host: long steps
+            self.out.clear()            # nobody was connected to hear it
+            self.wire_packets.clear()
+
+    @property
+    def drivers_enabled(self) -> bool:
+        """The drivers' enable line (the robot's enable pin) driven high."""
+        return self.chip.pin_high(*self.enable_pin)
 
     # ------------------------------------------------------------------ time
     @property
@@ -107,11 +118,11 @@ class FirmwareBoard:
 
     def duties(self) -> np.ndarray:
         """What each wheel's motor gets now: driver channel output through the wiring, 0 with pin 7 low."""
-        if not self.chip.drivers_enabled:
+        if not self.drivers_enabled:
             return np.zeros(4)
-        return np.array([s * self.channel[(a, c)] for a, c, s in self.motor_map])
+        return np.array([s * self.line.output(a, c) for a, c, s in self.motor_map])
 
-    def advance_to(self, clock_us: int) -> None:
+    def advance_to(self, clock_us: int, step_us: int = STEP_US) -> None:
         """Run chip and plant in lockstep up to board time `clock_us`.
 
         With `max_wall_s` set (the pty server sets it), a call returns after that much wall
@@ -120,15 +131,17 @@ class FirmwareBoard:
         wall_end = time.monotonic() + self.max_wall_s if self.max_wall_s else math.inf
         with self.lock:
             while self.clock_us < clock_us and time.monotonic() < wall_end:
-                end = min(int(clock_us), self.clock_us + STEP_US)
+                end = min(int(clock_us), self.clock_us + step_us)
                 self.chip.run_until(end * CYCLES_PER_US)
                 now_us = self.chip.cycles / CYCLES_PER_US
-                for cyc, addr, cmd, val in self.chip.packets():
+                for cyc, byte in self.chip.s1_bytes():
                     t = cyc / F_CPU
+                    self.line.expire(t)
                     self.plant.advance_to(t, self.duties())
-                    self._apply_packet(addr, cmd, val)
-                    if self.record_packets:
-                        self.wire_packets.append((t, addr, cmd, val))
+                    pk = self.line.byte(t, byte)
+                    if pk and self.record_packets:
+                        self.wire_packets.append((t, *pk))
+                self.line.expire(now_us * 1e-6)
                 self.plant.advance_to(now_us * 1e-6, self.duties())
                 self.clock_us = int(now_us)
                 self._update_inputs()
@@ -136,27 +149,21 @@ class FirmwareBoard:
                 if data:
                     self._board_bytes(data)
 
-    def _apply_packet(self, addr: int, cmd: int, val: int) -> None:
-        if cmd in (0, 1, 4, 5):
-            ch = 1 if cmd < 4 else 2
-            if (addr, ch) in self.channel:
-                self.channel[(addr, ch)] = (-1 if cmd in (1, 5) else 1) * min(val, 127) / 127
-
     def _update_inputs(self) -> None:
         """Counters and analog inputs from the plant's state (with the world's sensor noise)."""
         s = self.plant.state
         k = self.robot.counts_per_rev / (2 * math.pi)
         counts = (np.asarray(s.phi) + self.sensors.encoder_phase) * k * self.encoder_signs
         rates = np.asarray(s.phi_dot) * k * self.encoder_signs
-        self.chip.set_counters(counts, rates)
-        cfg = self.config
+        self.chip.set_counters(counts, rates)   # chip i reads wheel i, at the robot's chip-select pin
+        w = self.wiring
         v = self.sensors.battery_voltage(float(s.V_batt))
-        self.chip.set_adc_mv(0, v / float(cfg["battery_divider"]) * 1000)
-        gain, zero = float(cfg["hall_mv_per_a"]), float(cfg["hall_zero_mv"])
-        if cfg["battery_current"] == "hall":
+        self.chip.set_adc_mv(0, v / w.battery_divider * 1000)
+        gain, zero = w.hall_mv_per_a, w.hall_zero_mv
+        if w.battery_current == "hall":
             i = float(s.I_batt) + self.rng.normal(0.0, self.world.sensors.battery_current_noise)
             self.chip.set_adc_mv(5, zero + gain * i)
-        if cfg["motor_current"] == "hall":
+        if w.motor_current == "hall":
             cur = np.asarray(s.motor_current) + self.rng.normal(0.0, self.world.sensors.current_noise, 4)
             for w, (_, _, sign) in enumerate(self.motor_map):  # the sensor sits in the driver's lead
                 self.chip.set_adc_mv(1 + w, zero + gain * sign * cur[w])  # A1..A4
@@ -265,8 +272,8 @@ class FirmwareBoard:
             self._inserted += 1
             return "OK"
         bits = self.spec.flags["world_mask"]
-        if np.any(self.commanded != 0) or np.any(self.duties() != 0):
-            return "BAD_STATE"
+        if np.any(self.commanded != 0):  # the board holds running duties (after STOP its stop packets
+            return "BAD_STATE"           # may still be on the 9600-baud line: the person waits them out)
         kw: dict[str, Any] = {}
         if f["mask"] & (1 << bits["MODE"]):
             if not 0 <= f["mode"] < len(MODES):
@@ -308,8 +315,8 @@ class FirmwareBoard:
     def stop_motors(self) -> None:
         """The rig is shut down: the robot's power goes off with it."""
         with self.lock:
-            for k in self.channel:
-                self.channel[k] = 0.0
+            for d in self.line.drivers.values():
+                d.out = {1: 0.0, 2: 0.0}
             self.commanded[:] = 0
             self.last_command = "SHUTDOWN"
 
@@ -334,9 +341,50 @@ class FirmwareBoard:
                 "telemetry_hz": self.telemetry_hz, "watchdog_s": self.watchdog_s,
                 "host_frames": self.host_frames, "last_command": self.last_command,
                 "mode": self.plant.scenario.mode, "payload": self.plant.scenario.payload,
-                "disconnected": False, "firmware": str(self.elf), "drivers_enabled": self.chip.drivers_enabled,
-                "sabertooth_bad_packets": self.chip.packets_bad,
+                "disconnected": False, "firmware": str(self.elf), "drivers_enabled": self.drivers_enabled,
+                "robot": self.wiring.name, "sabertooth_packets": self.line.packets,
+                "sabertooth_bad_packets": self.line.bad_checksum, "wiring_findings": self.wiring_findings(),
             }
+
+    def wiring_findings(self) -> list[str]:
+        """What a person with a scope on the robot would note when the drivers do not hear the
+        firmware: where it talks instead, at which rate, to which address (and the build
+        setting that governs it). Empty when the line is clean."""
+        w, c, out = self.wiring, self.chip.counters(), []
+        s1 = f"S1 (pin {w.s1_pin})"
+        if c["s1_framing_errors"]:
+            out.append(f"{c['s1_framing_errors']:.0f} bytes on {s1} failed 8N1 at the drivers' {w.baud} baud: "
+                       "the firmware sends at another rate (build setting SABERTOOTH_BAUD)")
+        if c["s1_wrong_rate_bytes"]:
+            out.append(f"USART1 runs at {c['usart1_baud']:.0f} baud, the drivers listen at {w.baud}: "
+                       f"{c['s1_wrong_rate_bytes']:.0f} bytes are garbage to them (build setting SABERTOOTH_BAUD)")
+        if w.s1_pin != 18 and c["usart1_bytes"] and not self.line.packets:
+            out.append(f"the firmware sends on USART1 (TX1, pin 18) but the drivers' S1 is wired to pin {w.s1_pin} "
+                       f"(build setting SABERTOOTH_S1_PIN={w.s1_pin})")
+        if w.s1_pin == 18 and c["pin6_edges"] and not c["usart1_bytes"]:
+            out.append("the firmware sends on pin 6 but the drivers' S1 is wired to pin 18 (TX1) "
+                       "(build setting SABERTOOTH_S1_PIN=18)")
+        if w.autobaud and not self.chip.s1_baud and self.clock_us >= STARTUP_US:
+            out.append(f"the drivers autobaud and never received 0xAA on {s1}")
+        for a, n in sorted(self.line.other_address.items()):
+            out.append(f"{n} packets for address {a}: no driver has it (the robot's are "
+                       f"{', '.join(map(str, w.addresses))}; build settings MOTOR_FL..MOTOR_RR)")
+        if self.line.bad_checksum:
+            out.append(f"{self.line.bad_checksum} packets with a bad checksum on {s1} (ignored by the drivers)")
+        if c["spi_contention"]:
+            out.append(f"{c['spi_contention']:.0f} SPI bytes clocked with several LS7366R selected "
+                       "(MISO contention; the chips are read one at a time)")
+        return out
+
+    def power_cycle_drivers(self) -> None:
+        """Switch the drivers off and on (a motor-supply cut): they forget the serial timeout,
+        stop, and an autobauding driver waits for a new 0xAA."""
+        with self.lock:
+            for d in self.line.drivers.values():
+                d.power_cycle()
+            if self.wiring.autobaud:
+                self.chip.s1_config(None if self.wiring.s1_pin == 18 else MEGA_PINS[self.wiring.s1_pin],
+                                    self.wiring.baud, True)
 
     def close(self) -> None:
         self.chip.close()

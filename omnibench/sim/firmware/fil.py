@@ -6,7 +6,7 @@ import ctypes
 from pathlib import Path
 
 from omnibench.errors import UserError
-from omnibench.sim.firmware.build import FIRMWARE_DIR, make, require
+from omnibench.sim.firmware.build import FIRMWARE_DIR
 
 F_CPU = 16_000_000
 _P, _U64, _I = ctypes.c_void_p, ctypes.c_uint64, ctypes.c_int
@@ -19,21 +19,24 @@ _SIGNATURES = {
     "fil_host_write": ([_P, ctypes.c_char_p, _I], _I),
     "fil_host_pending": ([_P], ctypes.c_uint32),
     "fil_host_read": ([_P, ctypes.c_char_p, _P, _I], _I),
-    "fil_packets": ([_P, _P, _P, _P, _P, _I], _I),
-    "fil_packets_bad": ([_P], ctypes.c_uint32),
+    "fil_s1_config": ([_P, _I, ctypes.c_char, _I, ctypes.c_double, _I], None),
+    "fil_s1_bytes": ([_P, _P, _P, _I], _I),
+    "fil_s1_baud": ([_P], ctypes.c_double),
+    "fil_counters": ([_P, _P], None),
+    "fil_encoder_pins": ([_P, _P], None),
     "fil_set_counters": ([_P, _P, _P], None),
     "fil_set_adc_mv": ([_P, _I, ctypes.c_uint32], None),
-    "fil_pin7": ([_P], _I),
+    "fil_pin_high": ([_P, ctypes.c_char, _I], _I),
 }
 
 
 def harness_library(elf: Path) -> Path:
-    """libomnibot_fil.so beside the .elf (or in firmware/build), built with make if missing."""
+    """libomnibot_fil.so beside the .elf (or in firmware/build); UserError saying how to build it."""
     for cand in (elf.parent / "libomnibot_fil.so", FIRMWARE_DIR / "build" / "libomnibot_fil.so"):
         if cand.exists():
             return cand
-    require("fil")
-    return make("fil", elf.parent) / "libomnibot_fil.so"
+    raise UserError(f"the simavr harness (libomnibot_fil.so) is not beside {elf} nor in firmware/build: "
+                    f"run make -C firmware fil (BUILD={elf.parent} for this firmware)")
 
 
 class Harness:
@@ -43,7 +46,14 @@ class Harness:
         elf = Path(elf)
         if not elf.is_file():
             raise UserError(f"no firmware at {elf} (build it with: make -C firmware)")
-        self.lib = ctypes.CDLL(str(harness_library(elf)))
+        lib = harness_library(elf)
+        try:
+            self.lib = ctypes.CDLL(str(lib))
+            for name in _SIGNATURES:
+                getattr(self.lib, name)
+        except (OSError, AttributeError) as exc:
+            raise UserError(f"cannot load the simavr harness {lib} ({exc}): run make -C firmware fil "
+                            f"(an old one is rebuilt; it needs libsimavr)") from None
         for name, (args, res) in _SIGNATURES.items():
             fn = getattr(self.lib, name)
             fn.argtypes, fn.restype = args, res
@@ -53,8 +63,7 @@ class Harness:
             raise UserError(f"simavr could not load {elf}: {err.value.decode()}")
         self._buf = ctypes.create_string_buffer(65536)
         self._cyc = (ctypes.c_uint64 * 65536)()
-        self._pk = [(ctypes.c_uint64 * 4096)(), (ctypes.c_uint8 * 4096)(), (ctypes.c_uint8 * 4096)(),
-                    (ctypes.c_uint8 * 4096)()]
+        self._s1 = (ctypes.create_string_buffer(8192), (ctypes.c_uint64 * 8192)())
 
     def close(self) -> None:
         if self.h:
@@ -84,18 +93,37 @@ class Harness:
         n = self.lib.fil_host_read(self.h, self._buf, self._cyc, 65536)
         return self._buf.raw[:n], list(self._cyc[:n])
 
-    def packets(self) -> list[tuple[int, int, int, int]]:
-        """Sabertooth packets (cycle, address, command, value) decoded since the last call."""
-        c, a, m, v = self._pk
-        n = self.lib.fil_packets(self.h, c, a, m, v, 4096)
-        return [(c[i], a[i], m[i], v[i]) for i in range(n)]
+    def s1_config(self, pin: tuple[str, int] | None, baud: float, autobaud: bool) -> None:
+        """The drivers' S1 line: a pin (port letter, bit) sampled at `baud`, or None for USART1
+        (TX1); with `autobaud` the rate comes from the first 0xAA instead."""
+        port, bit = pin or ("D", 3)
+        self.lib.fil_s1_config(self.h, 1 if pin else 2, port.encode(), bit, float(baud), int(autobaud))
+
+    def s1_bytes(self) -> list[tuple[int, int]]:
+        """(cycle, byte) the drivers received on S1 since the last call."""
+        buf, cyc = self._s1
+        n = self.lib.fil_s1_bytes(self.h, buf, cyc, 8192)
+        return [(cyc[i], buf.raw[i]) for i in range(n)]
 
     @property
-    def packets_bad(self) -> int:
-        return self.lib.fil_packets_bad(self.h)
+    def s1_baud(self) -> float:
+        """The rate the drivers listen at (0: autobauding drivers still wait for 0xAA)."""
+        return self.lib.fil_s1_baud(self.h)
+
+    def counters(self) -> dict[str, float]:
+        """What the rig saw on the wires (for a diagnosis when the drivers hear nothing)."""
+        out = (ctypes.c_double * 7)()
+        self.lib.fil_counters(self.h, out)
+        keys = ("s1_framing_errors", "s1_wrong_rate_bytes", "pin6_edges", "usart1_bytes", "spi_contention",
+                "s1_bytes_lost", "usart1_baud")
+        return dict(zip(keys, list(out)))
+
+    def encoder_pins(self, pins) -> None:
+        """LS7366R chip i sits on Arduino pin pins[i] (42..49)."""
+        self.lib.fil_encoder_pins(self.h, (ctypes.c_int * 4)(*[int(p) for p in pins]))
 
     def set_counters(self, counts, rates) -> None:
-        """LS7366R counts (raw counter sense) now and their rates (counts/s)."""
+        """The four LS7366R chips' counts (raw counter sense) now and their rates (counts/s)."""
         c = (ctypes.c_double * 4)(*[float(x) for x in counts])
         r = (ctypes.c_double * 4)(*[float(x) for x in rates])
         self.lib.fil_set_counters(self.h, c, r)
@@ -103,6 +131,6 @@ class Harness:
     def set_adc_mv(self, channel: int, mv: float) -> None:
         self.lib.fil_set_adc_mv(self.h, channel, int(min(max(mv, 0), 5000)))
 
-    @property
-    def drivers_enabled(self) -> bool:
-        return bool(self.lib.fil_pin7(self.h))
+    def pin_high(self, port: str, bit: int) -> bool:
+        """1 if the firmware drives this pin high as an output."""
+        return bool(self.lib.fil_pin_high(self.h, port.encode(), bit))
