@@ -139,6 +139,28 @@ def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = 
                   date=dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
 
 
+def firmware_fixes(wiring: Wiring) -> list[str]:
+    """The Omnibot firmware's build settings (firmware/Makefile) that would make `wiring` straight.
+
+    Board channel k is the firmware's wheel slot k (MOTOR_FL, MOTOR_FR, MOTOR_RL, MOTOR_RR;
+    the k-th entry of ENCODER_SIGNS and ENCODER_CS). Rebuilding with these (make -C firmware
+    VAR=value) fixes the wiring in the firmware instead of in the wiring file."""
+    fixes = []
+    for w in range(4):
+        m, ms, e, es = wiring.motor_channel[w], wiring.motor_sign[w], wiring.encoder_channel[w], wiring.encoder_sign[w]
+        if m != w + 1:
+            fixes.append(f"{WHEELS[w]} is driven by channel {m}: MOTOR_{WHEELS[w]} must be today's "
+                         f"MOTOR_{WHEELS[m - 1]}{' with its sign negated' if ms < 0 else ''}")
+        elif ms < 0:
+            fixes.append(f"{WHEELS[w]} turns backward: negate the sign (third number) of MOTOR_{WHEELS[w]}")
+        if e != w + 1:
+            fixes.append(f"{WHEELS[w]} is read on encoder channel {e}: entries {w + 1} of ENCODER_CS and "
+                         f"ENCODER_SIGNS must be today's entries {e}{' (the sign negated)' if es < 0 else ''}")
+        elif es < 0:
+            fixes.append(f"{WHEELS[w]}'s counter counts backward: negate entry {w + 1} of ENCODER_SIGNS")
+    return fixes
+
+
 def commission(port: str, out: str | Path, *, robot_file: str | Path | None = None, ask: Ask = console_ask,
                confirm: Callable[[str], None] | None = None, echo: Callable[[str], None] = print,
                timeout: float = 2.0) -> Wiring:
@@ -155,6 +177,9 @@ def commission(port: str, out: str | Path, *, robot_file: str | Path | None = No
             safe_stop(board)
     Path(out).write_text(wiring.to_toml(), encoding="utf-8")
     echo(f"wiring: {wiring.describe()}")
+    fixes = firmware_fixes(wiring)
+    if fixes:
+        echo("to fix it in the Omnibot firmware instead (make -C firmware VAR=value, then flash): " + "; ".join(fixes))
     echo(f"motor current sensors {'work' if wiring.motor_current_sensor else 'read nothing'}; battery current "
          f"sensor {'present' if wiring.battery_current_sensor else 'absent (give energy an --ammeter)'}; "
          f"battery {wiring.battery_voltage_V:.2f} V")
