@@ -38,4 +38,5 @@ def default_build(tmp_path_factory):
     need("avr", "fil")
     build = make("all", tmp_path_factory.mktemp("fw-default"))
     make("pinrec", build)
+    make("fil", build)
     return build
