@@ -34,6 +34,7 @@ def hello_of(elf) -> dict:
 
 
 def run_make(build, *settings: str) -> subprocess.CompletedProcess:
+    """make -C firmware BUILD=build ARGS (targets and VAR=value)."""
     return subprocess.run(["make", "-C", str(FIRMWARE_DIR), f"BUILD={build}", *settings],
                           capture_output=True, text=True)
 
@@ -63,3 +64,22 @@ def test_a_bad_setting_is_one_line_naming_it(tmp_path, setting, words) -> None:
     assert r.returncode != 0
     lines = [x for x in r.stderr.splitlines() if x.startswith("bad build setting")]
     assert len(lines) == 1 and words in lines[0] and "Traceback" not in r.stderr
+
+
+def test_serve_without_the_harness_library_says_run_make_fil(tmp_path, monkeypatch, capsys) -> None:
+    """`sim serve --firmware` with no libomnibot_fil.so anywhere: one line, not an OSError."""
+    need("avr", "fil")
+    import omnibench.sim.firmware.fil as fil
+    from tests.bench.test_end_to_end import omnibench
+
+    make("all", tmp_path)
+    monkeypatch.setattr(fil, "FIRMWARE_DIR", tmp_path / "nowhere")
+    code, _, err = omnibench(capsys, "sim", "serve", "--firmware", str(tmp_path / "omnibot.elf"))
+    assert code != 0 and "run make -C firmware fil" in err and "Traceback" not in err and "OSError" not in err
+    assert len(err.strip().splitlines()) == 1, err
+
+
+def test_make_fil_without_the_simavr_headers_names_the_packages(tmp_path) -> None:
+    r = run_make(tmp_path, "fil", "SIMAVR_INC=/nonexistent")
+    assert r.returncode != 0
+    assert "apt-get install libsimavr-dev libelf-dev pkg-config" in r.stderr

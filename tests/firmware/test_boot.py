@@ -1,0 +1,94 @@
+"""Flash and boot as a user does, in simavr: the Mega's stock stk500v2 bootloader (Debian
+arduino-core-avr) runs in front of the firmware (firmware/sim/bootrig.c).
+
+What simavr 1.6 does and does not do here is in docs/firmware.md ("Bootloader in simavr"):
+avrdude -c wiring signs on, reads the signature and writes the flash through the bootloader,
+but its read-back (verify) times out, so the flash test passes -V and compares the flash image
+itself."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from omnibench.sim.firmware.build import FIRMWARE_DIR, make
+
+from .conftest import need
+
+BOOTLOADER = Path("/usr/share/arduino/hardware/arduino/avr/bootloaders/stk500v2/stk500boot_v2_mega2560.hex")
+
+
+def events(text: str) -> list[tuple[str, float, str]]:
+    out = []
+    for line in text.splitlines():
+        p = line.split()
+        if p and p[0] in ("RESET", "APP", "BOOT", "HANG", "END"):
+            out.append((p[0], float(p[1]), " ".join(p[2:])))
+    return out
+
+
+@pytest.fixture(scope="module")
+def boot_build(tmp_path_factory):
+    need("avr", "fil")
+    if not BOOTLOADER.exists():
+        pytest.skip(f"no stock bootloader at {BOOTLOADER} (apt-get install arduino-core-avr)")
+    build = make("all", tmp_path_factory.mktemp("fw-boot"))
+    make("bootrig", build)
+    return build
+
+
+def app_image(build: Path, out: Path) -> bytes:
+    subprocess.run(["avr-objcopy", "-I", "ihex", "-O", "binary", str(build / "omnibot.hex"), str(out)], check=True)
+    return out.read_bytes()
+
+
+def test_a_watchdog_reset_comes_back_through_the_bootloader_to_the_firmware(boot_build, tmp_path) -> None:
+    """The firmware hangs (its main loop stops feeding the 120 ms watchdog): the chip resets
+    into the bootloader, which starts the firmware again, once (no reset loop)."""
+    flash = tmp_path / "flash.bin"
+    app_image(boot_build, flash)
+    nm = subprocess.run(["avr-nm", str(boot_build / "omnibot.elf")], capture_output=True, text=True, check=True).stdout
+    hang_pc = next(int(line.split()[0], 16) for line in nm.splitlines() if line.endswith(" __stop_program"))
+    r = subprocess.run([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "4", "0.5", hex(hang_pc)],
+                       capture_output=True, text=True, timeout=120)
+    ev = events(r.stdout)
+    assert r.returncode == 0 and ev[-1][0] == "END", r.stdout + r.stderr
+    kinds = [e[0] for e in ev]
+    assert kinds[:3] == ["RESET", "APP", "HANG"], ev        # power-on, bootloader waits, firmware runs
+    t_hang = ev[2][1]
+    wdt = [e for e in ev if e[0] == "RESET" and e[2] == "watchdog"]
+    assert len(wdt) == 1 and 0.12 <= wdt[0][1] - t_hang <= 0.14, ev  # WDTO_120MS (simavr: 128 ms)
+    # back in the firmware, and it stays there to the end (no reset loop)
+    last_reset = max(e[1] for e in ev if e[0] == "RESET")
+    assert kinds[-2] == "APP" and ev[-2][1] >= last_reset and ev[-1][1] - ev[-2][1] > 1.5, ev
+    assert sum(k == "RESET" for k in kinds) <= 3, ev
+
+
+def test_flash_with_make_flash_through_the_bootloader_then_boot(boot_build, tmp_path) -> None:
+    """`make -C firmware flash PORT=<pty>` (avrdude -c wiring) into an erased chip running the
+    stock bootloader; the bootloader then starts the firmware, which talks to the host."""
+    flash = tmp_path / "flash.bin"
+    rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        line = ""
+        while not line.startswith("PTY"):
+            line = rig.stdout.readline()
+            assert line, "bootrig ended before it printed its pty"
+        pty = line.split()[1]
+        r = subprocess.run(["make", "-s", "-C", str(FIRMWARE_DIR), "flash", f"BUILD={boot_build}", f"PORT={pty}",
+                            "AVRDUDE_FLAGS=-V"], capture_output=True, text=True, timeout=240)
+        assert r.returncode == 0, r.stderr[-800:]
+        time.sleep(2)
+    finally:
+        rig.send_signal(signal.SIGTERM)
+        out, _ = rig.communicate(timeout=30)
+    image = app_image(boot_build, tmp_path / "app.bin")
+    assert flash.read_bytes()[:len(image)] == image  # the bootloader wrote exactly the firmware
+    ev = events(line + out)
+    assert any(e[0] == "APP" for e in ev), ev  # avrdude's "leave programming mode" starts it
