@@ -1,13 +1,16 @@
-"""Benchmark of the board firmware (firmware/) on a simulated ATmega2560 (simavr), issue 14.
+"""Benchmark of the board firmware (firmware/) on a simulated ATmega2560 (simavr), issues 14 and 33.
 
-Builds the firmware (with Hall current sensors, the heaviest build) and runs it in the
-firmware-in-the-loop rig with the plant as its robot. All times are board time, read off the
-simulated wire (the chip's cycle counter), not the wall clock. Printed:
+Builds the firmware with its defaults (the 2019 wiring: Sabertooth packets from the Timer2
+software UART on pin 6 at 9600 baud) plus Hall current sensors (the heaviest build) and runs
+it in the firmware-in-the-loop rig wired as the robot (robots/omnibot-2019-hall.toml). All
+times are board time, read off the simulated wire (the chip's cycle counter), not the wall
+clock. Printed:
 
 - the highest telemetry rate sustained at 115200 baud with zero lost frames (1 s per rate),
 - CPU load at 200 Hz telemetry and idle (cycles awake / cycles, from simavr's cycle count),
-- command-to-driver latency: end of a SET_DUTIES frame on UART0 to the end of the first and
-  of the last of the four Sabertooth packets on the motor UART,
+- command-to-driver latency per wheel: end of a SET_DUTIES frame on UART0 to the end of that
+  wheel's Sabertooth packet as the driver decoded it on pin 6 (4 bytes at 9600 = 4.17 ms each,
+  sent one after the other in the order FL, FR, RL, RR),
 - watchdog stop time: host silent; timeout to the first / last Sabertooth stop packet.
 
     .venv/bin/python benchmarks/firmware.py [--json out.json]
@@ -29,7 +32,7 @@ def rig(elf: Path):
     from omnibench.sim.firmware.board import FirmwareBoard
     from omnibench.sim.world import World
 
-    r = FirmwareBoard(World(seed=1), elf)
+    r = FirmwareBoard(World(seed=1), elf, "omnibot-2019-hall")  # its 2 s driver start-up is over
     r.record_packets = True
     r.advance_to(50_000)
     r.take_output()
@@ -63,6 +66,9 @@ def cpu_load(elf: Path, rate: int) -> float:
         if rate:
             r.feed(r.codec.frame_raw("CONFIGURE", 0, {"watchdog": 10000, "telemetry_rate": rate}))
         r.advance_to(r.clock_us + 50_000)
+        if rate:
+            d = 6000
+            r.feed(r.codec.frame_raw("SET_DUTIES", 1, {"duty": [d, -d, d, -d]}))  # wheels running: packets flow
         c0, s0 = r.cpu_load()
         r.advance_to(r.clock_us + 1_000_000)
         c1, s1 = r.cpu_load()
@@ -71,10 +77,15 @@ def cpu_load(elf: Path, rate: int) -> float:
         r.close()
 
 
-def latency(elf: Path, n: int = 20) -> tuple[list[float], list[float]]:
-    """SET_DUTIES frame in -> first / last of the four motor packets out, ms."""
+WHEELS = ("FL", "FR", "RL", "RR")
+
+
+def latency(elf: Path, n: int = 20) -> dict[str, list[float]]:
+    """SET_DUTIES frame in -> each wheel's motor packet through, ms; and the send order seen."""
     r = rig(elf)
-    first, last = [], []
+    per: dict[str, list[float]] = {w: [] for w in WHEELS}
+    orders: list[str] = []
+    wheel_of = {(a, c): w for w, (a, c, _) in enumerate(r.motor_map)}
     try:
         r.feed(r.codec.frame_raw("CONFIGURE", 0, {"watchdog": 10000, "telemetry_rate": 0}))
         r.advance_to(r.clock_us + 20_000)
@@ -84,14 +95,19 @@ def latency(elf: Path, n: int = 20) -> tuple[list[float], list[float]]:
             r.wire_packets.clear()
             r.feed(wire)
             t_in = r.clock_us * 1e-6 + len(wire) * HOST_BYTE_S
-            r.advance_to(r.clock_us + 15_000)
-            motor = [t for t, _, c, v in r.wire_packets if c in (0, 1, 4, 5) and v]
-            first.append((motor[0] - t_in) * 1e3)
-            last.append((motor[3] - t_in) * 1e3)
-            r.advance_to(r.clock_us + 7_000 + 1_300 * (k % 7))  # vary the phase against the ticks
+            r.advance_to(r.clock_us + 40_000)
+            got = [(t, wheel_of[(a, 1 if c < 4 else 2)]) for t, a, c, v in r.wire_packets if c in (0, 1, 4, 5) and v]
+            seen = []
+            for t, w in got:
+                if WHEELS[w] not in seen:
+                    seen.append(WHEELS[w])
+                    per[WHEELS[w]].append((t - t_in) * 1e3)
+            orders.append(",".join(seen))
+            r.advance_to(r.clock_us + 70_000 + 1_300 * (k % 7))  # past the next refresh; vary the phase
     finally:
         r.close()
-    return first, last
+    per["order"] = orders  # type: ignore[assignment]
+    return per
 
 
 def watchdog(elf: Path, n: int = 5) -> tuple[list[float], list[float], list[float]]:
@@ -111,7 +127,7 @@ def watchdog(elf: Path, n: int = 5) -> tuple[list[float], list[float], list[floa
             t_low = None
             while r.clock_us * 1e-6 < t_in + 0.2:
                 r.advance_to(r.clock_us + 100)
-                if t_low is None and not r.chip.drivers_enabled:
+                if t_low is None and not r.drivers_enabled:
                     t_low = r.clock_us * 1e-6
             stops = [t for t, _, c, v in r.wire_packets if c in (0, 1, 4, 5) and v == 0]
             first.append((stops[0] - t_in - 0.1) * 1e3)
@@ -153,16 +169,19 @@ def main(argv: list[str] | None = None) -> int:
     res["max_rate_hz"] = best
     res["cpu_load_200hz"] = cpu_load(elf, 200)
     res["cpu_load_idle"] = cpu_load(elf, 0)
-    first, last = latency(elf)
-    res["latency_first_ms"], res["latency_last_ms"] = statistics.median(first), statistics.median(last)
-    res["latency_first_max_ms"], res["latency_last_max_ms"] = max(first), max(last)
+    lat = latency(elf)
+    orders = lat.pop("order")
+    res["send_order"] = statistics.mode(orders)
+    res["send_order_share"] = orders.count(res["send_order"]) / len(orders)
+    res["latency_ms"] = {w: {"median": statistics.median(v), "max": max(v), "n": len(v)} for w, v in lat.items()}
     wf, wl, we = watchdog(elf)
     res["watchdog_first_ms"], res["watchdog_last_ms"], res["watchdog_enable_ms"] = max(wf), max(wl), max(we)
     print(f"highest telemetry rate with zero lost frames: {best} Hz (of the rates tried)")
     print(f"CPU load (ATmega2560, 16 MHz): {100 * res['cpu_load_200hz']:.1f} % at 200 Hz telemetry, "
           f"{100 * res['cpu_load_idle']:.1f} % idle")
-    print(f"SET_DUTIES -> Sabertooth packets: first {res['latency_first_ms']:.2f} ms (max {max(first):.2f}), "
-          f"all four {res['latency_last_ms']:.2f} ms (max {max(last):.2f}), median of {len(first)}")
+    print(f"SET_DUTIES -> Sabertooth packet through, per wheel at {9600} baud (send order {res['send_order']}, "
+          f"{100 * res['send_order_share']:.0f} % of {len(orders)} commands): "
+          + ", ".join(f"{w} {x['median']:.2f} ms (max {x['max']:.2f})" for w, x in res["latency_ms"].items()))
     print(f"watchdog: timeout -> enable line low <= {max(we):.2f} ms, first stop packet <= {max(wf):.2f} ms, "
           f"last stop packet <= {max(wl):.2f} ms ({len(wf)} trials)")
     if args.json:

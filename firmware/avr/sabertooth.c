@@ -169,6 +169,7 @@ static void queue_setup(uint8_t with_timeout) {
 static void refresh_all(void) {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         dirty = 0x0F;
+        next_wheel = 0;
         line_kick();
     }
 }
@@ -221,6 +222,8 @@ void sabertooth_set(uint8_t w, int16_t d) {
             val[w] = value;
             dirty |= (uint8_t)(1 << w);
         }
+        if (w == 0)
+            next_wheel = 0;                /* a new command goes out FL, FR, RL, RR, as square.ino */
         if (started)
             line_kick();
     }
