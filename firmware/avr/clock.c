@@ -55,30 +55,39 @@ uint8_t clock_take_tick(void) {
     return t != 0;
 }
 
-/* Interrupts off. Arm compare A once the instant is within reach; fire at once if it passed. */
-static void try_arm(void) {
+/* Interrupts off (the compare must be armed before the counter can pass it). Arm compare A
+   once the instant is within reach; 1 and *at = the sample time if it is due now (the caller
+   then latches the sample with interrupts enabled). */
+static uint8_t try_arm(uint32_t *at) {
     if (!pending)
-        return;
+        return 0;
     uint32_t now = now_locked();
     int32_t d = (int32_t)(sample_at - now);
     if (d <= 8) {
         pending = 0;
-        clock_sample_fired(d < 0 ? now : sample_at);
-    } else if (d < ARM_WITHIN_US) {
+        *at = d < 0 ? now : sample_at;
+        return 1;
+    }
+    if (d < ARM_WITHIN_US) {
         pending = 0;
         OCR1A = (uint16_t)(sample_at << 1);
         TIFR1 = _BV(OCF1A);
         TIMSK1 |= _BV(OCIE1A);
     }
+    return 0;
 }
 
 void clock_schedule(uint32_t at_us) {
+    uint32_t at = 0;
+    uint8_t due;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         TIMSK1 &= (uint8_t)~_BV(OCIE1A);
         sample_at = at_us;
         pending = 1;
-        try_arm();
+        due = try_arm(&at);
     }
+    if (due)
+        clock_sample_fired(at);
 }
 
 void clock_cancel(void) {
@@ -88,17 +97,27 @@ void clock_cancel(void) {
     }
 }
 
-/* Both Timer1 interrupts may read the four counters (about 60 µs of SPI): they run with
-   interrupts enabled so that the motor line's bit interrupt (sabertooth.c) is never late. */
+/* Both Timer1 interrupts run with interrupts enabled (they may read the four counters, about
+   60 µs of SPI), so that the motor line's bit interrupt (sabertooth.c) is never late; only
+   the arming of the compare is atomic. (Without that, the bit interrupt could fall between
+   computing a compare value and writing it: a compare armed a few µs ahead was passed and
+   fired one counter wrap, 32.8 ms, late: a gap in 220 Hz telemetry.) The bookkeeping here
+   is safe with interrupts on: no other interrupt touches the clock. */
 ISR(TIMER1_COMPB_vect, ISR_NOBLOCK) {
     OCR1B += TICK_COUNTS;
-    (void)now_locked();  /* keeps the wrap count current even when nobody asks the time */
-    if (ticks < 255)
-        ticks++;
-    try_arm();
+    uint32_t at = 0;
+    uint8_t due;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        (void)now_locked();  /* keeps the wrap count current even when nobody asks the time */
+        if (ticks < 255)
+            ticks++;
+        due = try_arm(&at);
+    }
+    if (due)
+        clock_sample_fired(at);
 }
 
 ISR(TIMER1_COMPA_vect, ISR_NOBLOCK) {
-    TIMSK1 &= (uint8_t)~_BV(OCIE1A);
+    TIMSK1 &= (uint8_t)~_BV(OCIE1A);  /* its flag was cleared on entry: no second call */
     clock_sample_fired(sample_at);
 }

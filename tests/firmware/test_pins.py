@@ -42,7 +42,7 @@ def record(build: Path, seconds: float = RUN_S, *pins: str) -> tuple[float, dict
 def decode_uart(changes: list[tuple[int, int]], hz: float, baud: float, tolerance: float = 0.1) -> list[tuple[float, int]]:
     """8N1 bytes (start time s, value) from the pin's level changes; AssertionError on a framing
     error or an edge more than `tolerance` (10 %) of a bit away from a bit boundary (a receiver samples
-    mid-bit; the firmware's edges carry up to about 4 % of a bit of interrupt latency at 9600)."""
+    mid-bit; the firmware's edges carry up to about 6 % of a bit of interrupt latency at 9600)."""
     cycles = [c for c, _ in changes]
     bit = hz / baud
 
@@ -126,5 +126,5 @@ def test_a_38400_baud_build_is_not_read_as_9600(tmp_path) -> None:
     hz, changes, _ = record(build, 2.2, "H3")
     with pytest.raises(AssertionError, match="framing error|edge"):
         decode_uart(changes["H3"], hz, BAUD)
-    # (a bit is 417 cycles there: the same ~45 cycles of interrupt latency are 11 % of it)
-    assert decode_uart(changes["H3"], hz, 38400, tolerance=0.2)[0][1] == 0xAA
+    # (a bit is 417 cycles there: the same ~90 cycles of interrupt latency are 22 % of it)
+    assert decode_uart(changes["H3"], hz, 38400, tolerance=0.3)[0][1] == 0xAA
