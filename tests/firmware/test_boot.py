@@ -92,3 +92,37 @@ def test_flash_with_make_flash_through_the_bootloader_then_boot(boot_build, tmp_
     assert flash.read_bytes()[:len(image)] == image  # the bootloader wrote exactly the firmware
     ev = events(line + out)
     assert any(e[0] == "APP" for e in ev), ev  # avrdude's "leave programming mode" starts it
+
+
+def test_the_host_connects_after_the_reset_a_port_open_causes(boot_build, tmp_path) -> None:
+    """DTR reset (SIGUSR1: a pty has no DTR line) -> bootloader -> firmware; once the bootloader
+    has handed over, Board.open gets the firmware's HELLO."""
+    from omnibench.link.board import Board
+
+    flash = tmp_path / "flash.bin"
+    app_image(boot_build, flash)
+    rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    seen: list[str] = []
+
+    def until(kind: str) -> None:
+        while True:
+            line = rig.stdout.readline()
+            assert line, f"bootrig ended before {kind}: {seen}"
+            seen.append(line.strip())
+            if line.startswith(kind):
+                return
+
+    try:
+        until("PTY")
+        pty = seen[-1].split()[1]
+        until("APP")                       # power-on: the bootloader's wait, then the firmware
+        os.kill(rig.pid, signal.SIGUSR1)   # the port open's DTR pulse
+        until("RESET")
+        assert seen[-1].endswith("dtr")
+        until("APP")                       # the bootloader hands over again
+        with Board.open(pty, timeout=5.0) as b:
+            assert b.hello.board_id == 1 and b.version_ok
+    finally:
+        rig.send_signal(signal.SIGTERM)
+        rig.communicate(timeout=30)
