@@ -4,9 +4,9 @@
 Usage: gen_settings.py OUT.h NAME=VALUE ...   (the make settings, as the user writes them)
 The header (#define per setting in C terms, plus SETTINGS_HASH, a CRC-32 of the settings as
 given) is rewritten only when its content changes, so `make VAR=value` rebuilds what depends
-on the settings and a plain `make` rebuilds nothing. The board reports the hash in HELLO
-(firmware_version's patch byte is not touched: see docs/firmware.md, "Which build a board
-runs"). A malformed value is one line and exit status 2. Standard library only.
+on the settings and a plain `make` rebuilds nothing. The hash is printed and kept in the
+header; the board does not report it yet (HELLO has no field for it: docs/firmware.md).
+A malformed value is one line and exit status 2. Standard library only.
 """
 
 from __future__ import annotations
