@@ -18,11 +18,19 @@
      BOOT <t> from <pc>    the program counter entered the bootloader (last application pc)
      HANG <t>              the firmware was made to hang (HANG_S)
      END <t>
-   A signal (SIGUSR1) resets the chip as the Mega's DTR line does when a port is opened. */
+   A signal (SIGUSR1) resets the chip as the Mega's DTR line does when a port is opened.
+
+   BOOTRIG_REALTIME=1 in the environment runs the chip at a real Mega's pace, for a host that
+   times its own silences: simulated time is held to the wall clock (never ahead of it; END then
+   also prints the largest lag behind it), and UART polls do not sleep. simavr's default
+   (AVR_UART_FLAG_POLL_SLEEP) sleeps on every poll of an empty receiver, which slows the
+   bootloader's programming-mode byte wait (a poll every 10 cycles) about a hundredfold:
+   its 5 s silence timeout would take minutes of wall time. */
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "avr_ioport.h"
@@ -39,6 +47,12 @@ static void on_usr1(int sig) { (void)sig; dtr_reset = 1; }
 static void on_term(int sig) { (void)sig; stop = 1; }
 
 static int verbose;
+
+static double wall_s(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
 
 /* Cycles asleep are skipped, not slept on the host (simavr's default sleeps in real time). */
 static void no_sleep(avr_t *a, avr_cycle_count_t how_long) { (void)a; (void)how_long; }
@@ -93,6 +107,10 @@ int main(int argc, char **argv) {
     uint32_t uf = 0;
     avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &uf);
     uf &= ~(uint32_t)AVR_UART_FLAG_STDIO;
+    const char *rt = getenv("BOOTRIG_REALTIME");
+    int realtime = rt && *rt && strcmp(rt, "0") != 0;
+    if (realtime)
+        uf &= ~(uint32_t)AVR_UART_FLAG_POLL_SLEEP;
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &uf);
     uart_pty_t pty;
     memset(&pty, 0, sizeof pty);
@@ -109,11 +127,23 @@ int main(int argc, char **argv) {
     unsigned long long app_first = 0;
     int state = cpu_Running;
     uint32_t last_app_pc = 0;
+    double wall0 = wall_s(), max_lag = 0;
+    unsigned long long next_pace = 0;
     while (avr->cycle < end && state != cpu_Done && state != cpu_Crashed && !stop) {
         if (avr->pc < BOOT_START)
             last_app_pc = avr->pc;
         state = avr_run(avr);
         double t = avr->cycle / (double)avr->frequency;
+        if (realtime && avr->cycle >= next_pace) {  /* every 1 ms of simulated time */
+            next_pace = avr->cycle + avr->frequency / 1000;
+            double ahead = t - (wall_s() - wall0);
+            if (ahead > 0.001) {
+                struct timespec ts = {(time_t)ahead, (long)((ahead - (time_t)ahead) * 1e9)};
+                nanosleep(&ts, NULL);
+            } else if (-ahead > max_lag) {
+                max_lag = -ahead;
+            }
+        }
         int app = avr->pc < BOOT_START;
         if (app != in_app) {
             if (app)
@@ -144,7 +174,10 @@ int main(int argc, char **argv) {
             fflush(stdout);
         }
     }
-    printf("END %.6f%s\n", avr->cycle / (double)avr->frequency, state == cpu_Crashed ? " crashed" : "");
+    printf("END %.6f%s", avr->cycle / (double)avr->frequency, state == cpu_Crashed ? " crashed" : "");
+    if (realtime)
+        printf(" lag %.3f", max_lag);
+    printf("\n");
     fl = fopen(argv[2], "wb");
     if (fl) {
         fwrite(avr->flash, 1, BOOT_START, fl);

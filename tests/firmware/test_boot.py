@@ -126,3 +126,51 @@ def test_the_host_connects_after_the_reset_a_port_open_causes(boot_build, tmp_pa
     finally:
         rig.send_signal(signal.SIGTERM)
         rig.communicate(timeout=30)
+
+
+def test_the_host_connects_when_it_opens_the_port_as_the_reset_happens(boot_build, tmp_path) -> None:
+    """As a user meets it: the firmware runs, opening the port resets the Mega (DTR) and the
+    host handshakes at once, into the stock bootloader's wait. Any byte the bootloader receives
+    starts a programming session it leaves only after 5 s of silence (stk500boot.c,
+    recchar_timeout: 8e6 polls of 10 cycles at 16 MHz), so a host that keeps re-sending
+    HELLO_REQ never sees the firmware. Board.open with its default timeout must get HELLO.
+    The rig runs at a real Mega's pace (BOOTRIG_REALTIME), as the host times its silence on
+    the wall clock."""
+    from omnibench.link.board import Board
+
+    flash = tmp_path / "flash.bin"
+    app_image(boot_build, flash)
+    rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                           env={**os.environ, "BOOTRIG_REALTIME": "1"})
+    seen: list[str] = []
+
+    def until(kind: str) -> None:
+        while True:
+            line = rig.stdout.readline()
+            assert line, f"bootrig ended before {kind}: {seen}"
+            seen.append(line.strip())
+            if line.startswith(kind):
+                return
+
+    try:
+        until("PTY")
+        pty = seen[-1].split()[1]
+        until("APP")                       # power-on: the firmware has been running
+        os.kill(rig.pid, signal.SIGUSR1)   # the port open's DTR pulse ...
+        t0 = time.monotonic()
+        with Board.open(pty) as b:         # ... and the host's handshake right behind it
+            took = time.monotonic() - t0
+            assert b.hello.board_id == 1 and b.version_ok
+    finally:
+        rig.send_signal(signal.SIGTERM)
+        out, _ = rig.communicate(timeout=30)
+    ev = [e for e in events("\n".join(seen) + "\n" + out) if e[0] != "BOOT"]
+    kinds = [e[0] for e in ev]
+    assert kinds == ["RESET", "APP", "RESET", "APP", "END"] and ev[2][2] == "dtr", ev  # one hand-over
+    lag = float(ev[-1][2].split()[-1])
+    assert lag < 0.5, f"simavr fell {lag:.2f} s behind the wall clock: the rig was not a Mega in real time"
+    # the request reached the bootloader's wait: it started the firmware 5 s after it
+    # (a real Mega is still starting up when the host's first bytes arrive, and starts the firmware after 0.83 s)
+    assert 4.9 < ev[3][1] - ev[2][1] < 5.3, ev
+    assert took < 6.0, took  # the firmware's boot HELLO ends the host's silence
