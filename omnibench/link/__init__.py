@@ -6,7 +6,7 @@ protocols/omnibot-board-v2.toml. What procedures use:
     from omnibench.link.board import Board
     from omnibench.link.ammeter import open_ammeter
 
-    Board.open(url, *, timeout=3.0, baudrate=None, protocol="omnibot-board-v2",
+    Board.open(url, *, timeout=8.0, baudrate=None, protocol="omnibot-board-v2",
                strict=True, heartbeat=True) -> Board        # context manager: exit stops motors
                                   # heartbeat: PING inside the caller's reads only (no thread);
                                   # device ports are locked (a second process is refused)

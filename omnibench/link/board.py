@@ -50,6 +50,11 @@ RETRIES = 20                #: extra attempts per command (a 2 % byte-error cabl
 TIME_SLACK_S = 0.002        #: allowance on a frame's board time beyond the expected telemetry period
 STALL_S = 0.45              #: no byte for this long while telemetry is on: probe the board
 PROBE_S = 0.45              #: probe unanswered for this long: the link is lost
+BOOTLOADER_SILENCE_S = 5.0  #: the Mega's stock stk500v2 bootloader starts the firmware only after this much silence
+                            #: once it has received a byte (8e6 polls of 10 cycles at 16 MHz; stk500boot.c)
+BOOT_QUIET_S = 5.5          #: handshake: first request unanswered, nothing heard: stay silent this long
+QUIET_RESERVE_S = 1.0       #: ... but stop being silent this long before the handshake timeout (to retry)
+HANDSHAKE_TIMEOUT_S = 8.0   #: default handshake timeout: a DTR reset's bootloader (<= 5.1 s), then the firmware
 MODES = ("ground", "upside_down")
 
 
@@ -116,12 +121,17 @@ class Board:
 
     # ================================================================== opening
     @classmethod
-    def open(cls, url: str, *, timeout: float = 3.0, baudrate: int | None = None,
+    def open(cls, url: str, *, timeout: float = HANDSHAKE_TIMEOUT_S, baudrate: int | None = None,
              protocol: str = DEFAULT_PROTOCOL, strict: bool = True, heartbeat: bool = True) -> "Board":
         """Open `url` (any pyserial URL), handshake within `timeout` s, stop the motors.
 
-        The default timeout covers boards that reboot when the port opens (Arduino DTR
-        reset, about 2 s to boot).
+        A board that answers the first HELLO_REQ opens at once. One that sends nothing back
+        may be rebooting because the port opened (an Arduino Mega resets on DTR into its
+        bootloader, which starts the firmware only after 0.8 s, or after 5 s of silence on
+        its serial line once it has received a byte): the host then stays silent, listening,
+        for BOOT_QUIET_S before it asks again (a HELLO or any byte ends the wait at once).
+        The default timeout covers that; a timeout shorter than BOOT_QUIET_S +
+        QUIET_RESERVE_S cuts the silence short, to keep time for retries.
 
         `baudrate` defaults to the protocol's ([board].baudrate, 115200). With
         `strict` (default) a board speaking another protocol version raises BoardError
@@ -155,12 +165,23 @@ class Board:
             self._port.reset_input_buffer()
         except (serial.SerialException, OSError):
             pass
-        deadline = time.monotonic() + timeout
+        start = time.monotonic()
+        deadline = start + timeout
         hello: Message | None = None
         ack_ok = False
-        seq = None
-        while time.monotonic() < deadline:
-            if seq is None or time.monotonic() - self._last_tx_wall > ACK_TIMEOUT_S:
+        # A board that reset as the port opened may be in its bootloader, where every byte
+        # received restarts the bootloader's wait for silence: after one unanswered request
+        # with nothing heard at all, stay silent (listening) until the firmware has had time
+        # to start. Any byte from the board shows it is not there (the bootloader says
+        # nothing), and a HELLO it sends as it boots ends the silence at once.
+        quiet_until: float | None = None
+        seq = self._send("HELLO_REQ")
+        while (now := time.monotonic()) < deadline:
+            heard = self.stats.bytes_in > 0
+            if quiet_until is None and not heard and now - start > ACK_TIMEOUT_S:
+                quiet_until = min(now + BOOT_QUIET_S, deadline - QUIET_RESERVE_S)
+            quiet = quiet_until is not None and now < quiet_until and not heard
+            if not quiet and now - self._last_tx_wall > ACK_TIMEOUT_S:
                 seq = self._send("HELLO_REQ")
             self._pump(wait=True, check=False)
             hello = self._replies.get("HELLO") or hello
@@ -170,11 +191,19 @@ class Board:
         if hello is None and self._foreign_version is not None:
             raise BoardError(self._mismatch_message(self._foreign_version))
         if hello is None:
+            if self.stats.bytes_in:
+                silent = ""
+            elif timeout < BOOT_QUIET_S + QUIET_RESERVE_S:
+                silent = (f"; nothing came back: a Mega that resets as the port opens can take "
+                          f"{BOOTLOADER_SILENCE_S:g} s to leave its bootloader, open with the default timeout "
+                          f"({HANDSHAKE_TIMEOUT_S:g} s)")
+            else:
+                silent = "; nothing came back (a board with no firmware stays silent in its bootloader)"
             raise BoardError(
                 f"no HELLO from a board on {self.url} within {timeout:g} s: check the port, the baud rate "
                 f"(board expects {self.spec.board.get('baudrate', 115200)}, opened at {baud}), that the board "
                 f"is powered and runs {self.spec.name} v{self.spec.version} firmware (frames of another version's "
-                f"frame check, e.g. v1's CRC-16, are not recognised)")
+                f"frame check, e.g. v1's CRC-16, are not recognised){silent}")
         self.hello = self._to_hello(hello)
         self._replies.pop("HELLO", None)
         self._acks.clear()
