@@ -163,7 +163,7 @@ def firmware_fixes(wiring: Wiring) -> list[str]:
 
 def commission(port: str, out: str | Path, *, robot_file: str | Path | None = None, ask: Ask = console_ask,
                confirm: Callable[[str], None] | None = None, echo: Callable[[str], None] = print,
-               timeout: float = 2.0) -> Wiring:
+               timeout: float | None = None) -> Wiring:
     """Open `port`, find the wiring, write it to `out`; motors stopped on every exit path."""
     from omnibench.bench.link_adapter import open_bench_board
     from omnibench.bench.runner import safe_stop

@@ -18,7 +18,7 @@ from omnibench.bench.board import BenchBoard, Telemetry
 
 
 @contextlib.contextmanager
-def open_bench_board(url: str, timeout: float = 2.0, ammeter: str | None = None) -> Iterator[BenchBoard]:
+def open_bench_board(url: str, timeout: float | None = None, ammeter: str | None = None) -> Iterator[BenchBoard]:
     """Open the board at `url` (serial device, `sim://...`) as a BenchBoard, with an optional
     SCPI ammeter on its own serial URL for the battery current; motors stopped on exit."""
     with LinkBoard.open(url, timeout=timeout, ammeter=ammeter) as board:
@@ -41,13 +41,15 @@ class LinkBoard:
 
     @classmethod
     @contextlib.contextmanager
-    def open(cls, url: str, timeout: float = 2.0, ammeter: str | None = None,
+    def open(cls, url: str, timeout: float | None = None, ammeter: str | None = None,
              ammeter_period: float = 0.05) -> Iterator["LinkBoard"]:
         """Open `url` with the link client (and the SCPI ammeter at `ammeter`, read every
-        `ammeter_period` s of board time); leaving the block stops the motors and closes both."""
-        from omnibench.link.board import Board
+        `ammeter_period` s of board time); leaving the block stops the motors and closes both.
+        `timeout` None: the link's handshake default (covers a Mega's reset and bootloader)."""
+        from omnibench.link.board import HANDSHAKE_TIMEOUT_S, Board
 
-        with Board.open(url, timeout=timeout, heartbeat=False) as board:
+        with Board.open(url, timeout=HANDSHAKE_TIMEOUT_S if timeout is None else timeout,
+                        heartbeat=False) as board:
             lb = cls(board)
             meter = None
             if ammeter:

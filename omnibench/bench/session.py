@@ -182,7 +182,7 @@ def run_command(
     echo: Callable[[str], None] = print,
     progress: bool = True,
     measurement_noise: float | None = None,
-    timeout: float = 2.0,
+    timeout: float | None = None,
     ammeter: str | None = None,
     operator: str = "auto",
     without_current: bool = False,

@@ -22,12 +22,16 @@ def command() -> None:
 
 @command.command(name="info")
 @click.option("--port", required=True, help=PORT_HELP)
-@click.option("--timeout", type=FINITE, default=3.0, show_default=True, help="Handshake timeout, s.")
+@click.option("--timeout", type=FINITE, default=None,
+              help="Handshake timeout, s [default: 8, a Mega that resets as the port opens can take 5 s in its "
+                   "bootloader].")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-def info(port: str, timeout: float, as_json: bool) -> None:
+def info(port: str, timeout: float | None, as_json: bool) -> None:
     """Handshake with the board and print its identity, protocol and link round trip."""
-    from omnibench.link.board import Board
+    from omnibench.link.board import HANDSHAKE_TIMEOUT_S, Board
 
+    if timeout is None:
+        timeout = HANDSHAKE_TIMEOUT_S
     if not 0 < timeout <= 60:
         raise UserError(f"--timeout {timeout:g}: give the handshake timeout in s, in (0, 60]")
     with Board.open(port, timeout=timeout, strict=False) as board:
