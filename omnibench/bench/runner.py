@@ -42,7 +42,7 @@ import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
 from omnibench.bench.procedure import Plan, Step, World
-from omnibench.errors import BoardError
+from omnibench.errors import BoardError, Terminated  # noqa: F401 - Terminated re-exported
 
 #: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
 QUESTION_FACTOR = 3.0
@@ -120,10 +120,6 @@ def angle_slope(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- runner
-class Terminated(KeyboardInterrupt):
-    """SIGTERM: handled like Ctrl-C (stop, mark aborted, keep the data)."""
-
-
 @dataclass
 class StepData:
     """Samples of the current step, kept in memory for the step's results."""

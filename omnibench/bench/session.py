@@ -132,7 +132,6 @@ def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
 
 #: errors of the output file system: reported in one line naming the file, run left resumable
 DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EIO}
-RESERVE_NAME = "run.json.reserve"
 
 
 @contextlib.contextmanager
@@ -150,17 +149,6 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
-
-
-def reserve_space(run_dir: Path, nbytes: int) -> Path:
-    """Claim `nbytes` on the run's file system before the robot moves (a file of zeros), so
-    that on a full disk run.json can still be marked (the reserve is freed first)."""
-    path = run_dir / RESERVE_NAME
-    with open(path, "wb") as fh:
-        fh.write(b"\0" * nbytes)
-        fh.flush()
-        os.fsync(fh.fileno())
-    return path
 
 
 def disk_error_line(exc: OSError, run_dir: Path) -> str:
@@ -204,18 +192,10 @@ def run_command(
     # 1. everything from files, before any port is touched
     if resume is not None:
         run_dir = Path(resume)
-        if not (run_dir / "run.json").is_file():
-            raise UserError(f"{run_dir}: not a run directory (no run.json) to resume")
-        try:
-            meta = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise UserError(f"{run_dir / 'run.json'}: unreadable ({type(exc).__name__}); cannot resume") from None
-        if not isinstance(meta, dict) or meta.get("format") != "omnibench-run":
-            raise UserError(f"{run_dir / 'run.json'}: not an omnibench run description; cannot resume")
-        if meta.get("procedure") != procedure:
-            raise UserError(f"{run_dir}: is a {meta.get('procedure')} run; resume it with its own command")
-        if meta.get("status") == "complete":
-            raise UserError(f"{run_dir}: run is already complete; nothing to resume")
+        from omnibench.runs.record import check_resumable
+
+        info, _ = check_resumable(run_dir, procedure)  # every file checked; nothing written yet
+        meta = info.raw
         robot, robot_text, robot_name = load_robot_file(run_dir / "robot.toml")
         robot_name = meta.get("robot_file") or robot_name
         plan = load_plan(run_dir / "procedure.toml", robot, expect=procedure)
@@ -341,9 +321,12 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                   without_current: bool = False, plot: bool = False, verbosity: int = 0) -> dict[str, Any]:
     import click
 
-    from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
+    from omnibench.bench.runner import Runner, Terminated, safe_stop, sigterm_as_interrupt
     from omnibench.runs import RunWriter
-    from omnibench.runs.store import _read_jsonl
+    from omnibench.runs.record import read_info, read_steps
+
+    def steps_done(path: Path) -> list[int]:
+        return [int(r["step"]) for r in read_steps(path, read_info(path))]
 
     hello = dict(getattr(board, "hello", {}) or {})
     cpr = hello.get("counts_per_rev") or robot.counts_per_rev
@@ -357,9 +340,11 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                             "to drive the trajectories anyway (no energy is measured)")
     operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     if resume is not None:
-        (Path(resume) / RESERVE_NAME).unlink(missing_ok=True)  # left by a killed run
-        writer = RunWriter.resume(Path(resume), board=hello)
-        done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
+        try:
+            writer = RunWriter.resume(Path(resume), board=hello)  # validates every file first
+        except OSError as exc:
+            raise UserError(f"cannot resume {resume}: {disk_error_line(exc, Path(resume))}") from None
+        done = set(steps_done(writer.path))
         todo = [s for s in plan.steps if s.index not in done]
         echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
     else:
@@ -377,7 +362,6 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
     disk_full = False
-    reserve: Path | None = None
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
     lock.__enter__()
     log = RunLog(writer.path)
@@ -386,7 +370,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     try:
         restore = sigterm_as_interrupt()
         meta_size = len(json.dumps(writer.metadata, default=str))
-        reserve = reserve_space(writer.path, max(256 * 1024, 8 * meta_size))  # before the robot moves
+        writer.reserve(max(256 * 1024, 8 * meta_size))  # before the robot moves
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
         view = None
@@ -412,6 +396,9 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             if view is not None:
                 view.close()
         status, reason = "complete", None
+    except Terminated:
+        status, reason = "aborted", "terminated (SIGTERM)"
+        raise
     except KeyboardInterrupt:
         status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
         raise
@@ -432,8 +419,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         raise
     finally:
         stopped = safe_stop(board)
-        if reserve is not None:
-            reserve.unlink(missing_ok=True)  # frees the space run.json needs, even on a full disk
+        writer.release_reserve()  # frees the space run.json needs, even on a full disk
         try:
             writer.event("motors_stopped", confirmed=stopped)
             if getattr(board, "link_stats", None) is not None:

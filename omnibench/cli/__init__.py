@@ -14,7 +14,7 @@ import sys
 import click
 
 from omnibench import __version__
-from omnibench.errors import UserError
+from omnibench.errors import Terminated, UserError
 
 # command name -> (module, one-line help shown in `omnibench --help`)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -102,6 +102,9 @@ def main(argv: list[str] | None = None) -> None:
             raise
         click.echo(f"omnibench: error: {exc}", err=True)
         sys.exit(exc.exit_code)
+    except Terminated:
+        click.echo("omnibench: terminated (SIGTERM)", err=True)
+        sys.exit(143)
     except KeyboardInterrupt:
         click.echo("omnibench: interrupted", err=True)
         sys.exit(130)
