@@ -10,6 +10,10 @@
 3. byte-error rate a sweep survives (sim://, fast clock), with the steady-speed deviation.
 4. watchdog stop time for a hung host (real-time pty, runner hung mid-hold).
 5. bad input: clear / silent / internal / hang / overwrite (tests/reliability/badinput.py).
+6. corrupted run files: every field of run.json and steps.jsonl x wrong type, NaN, inf, huge,
+   negative, missing, path trick, over fit, validate-energy, predict, diagnose, resume and
+   campaign (tests/reliability/runmatrix.py): clear / correct / unclear / silent / internal /
+   escape / hang per command.
 """
 
 from __future__ import annotations
@@ -169,12 +173,26 @@ def bad_input() -> None:
         print(f"  {line}")
 
 
+def run_files() -> None:
+    from reliability.runmatrix import run_matrix, total
+
+    t0 = time.process_time()
+    counts, worst = run_matrix()
+    for cmd, per in counts.items():
+        print(f"  {cmd}: cases {sum(per.values())}, " + ", ".join(f"{k} {v}" for k, v in per.items()))
+    t = total(counts)
+    print(f"corrupted run files: cases {sum(t.values())}, " + ", ".join(f"{k} {v}" for k, v in t.items())
+          + f" ({time.process_time() - t0:.0f} s CPU)")
+    for line in worst:
+        print(f"  {line}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sweeps", type=int, default=20)
     ap.add_argument("--frames", type=int, default=200_000)
     ap.add_argument("--quick", action="store_true", help="2 sweeps, 20000 frames")
-    ap.add_argument("--only", choices=["stale", "integrity", "errors", "hung", "bad"], default=None)
+    ap.add_argument("--only", choices=["stale", "integrity", "errors", "hung", "bad", "runs"], default=None)
     a = ap.parse_args()
     if a.quick:
         a.sweeps, a.frames = 2, 20_000
@@ -188,6 +206,8 @@ def main() -> None:
             hung_host(tmp)
         if a.only in (None, "bad"):
             bad_input()
+        if a.only in (None, "runs"):
+            run_files()
         if a.only in (None, "stale"):
             stale(tmp, a.sweeps)
     finally:

@@ -265,6 +265,7 @@ class RunWriter:
         path = Path(path)
         info, _ = check_resumable(path)  # every file validated before anything is written
         meta = info.raw
+        _unlink_quietly(path / RESERVE_NAME)  # left by a killed run
         _trim_partial_line(path / "samples.csv")
         _trim_partial_line(path / "events.jsonl")
         _trim_partial_line(path / "steps.jsonl")

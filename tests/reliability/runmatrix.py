@@ -137,7 +137,7 @@ def _escaped(root: Path) -> bool:
 
 def argv_for(cmd: str, d: Path, out: Path) -> list[str]:
     return {
-        "fit": ["fit", str(d), "--out", str(out / "model.toml"), "--plots", str(out / "plots"), "--json"],
+        "fit": ["fit", str(d), "--out", str(out / "model.toml"), "--no-per-wheel", "--json"],
         "validate-energy": ["validate-energy", str(d), "--model", MODEL, "--plots", str(out / "plots"), "--json"],
         "predict": ["predict", str(d), "--model", MODEL, "--plots", str(out / "plots"), "--json"],
         "diagnose": ["diagnose", str(d), "--model", MODEL, "--procedures", "sweep", "--out",
@@ -177,11 +177,12 @@ def _has_nan(out: Path) -> bool:
 
 def run_matrix(root: Path | None = None, commands: tuple[str, ...] = COMMANDS,
                select: Callable[[int, Damage, str], bool] | None = None,
-               progress: Callable[[str], None] | None = None, accepted_every: int = 1,
+               progress: Callable[[str], None] | None = None,
+               run_accepted: Callable[[Damage], bool] = lambda dmg: True,
                ) -> tuple[dict[str, dict[str, int]], list[str]]:
     """Run the matrix: counts per command and outcome, and a line per case not clear/correct.
     `select(i, damage, command)` keeps a subset (the test's); a case the reader accepts (a whole
-    analysis or resume) runs only for every `accepted_every`-th damage."""
+    analysis or resume: seconds) runs only for the damages `run_accepted(damage)` keeps."""
     own = root is None
     root = Path(tempfile.mkdtemp(prefix="omnibench-runmatrix-")) if own else Path(root)
     cwd = os.getcwd()
@@ -208,7 +209,7 @@ def run_matrix(root: Path | None = None, commands: tuple[str, ...] = COMMANDS,
                     (d / "run.json").write_text(json.dumps(meta, indent=2))
                 apply(d, dmg, good)
                 why = reader_verdict(d) if cmd != "resume" else _resume_verdict(d)
-                if why is None and (cmd in HEAVY or i % accepted_every):
+                if why is None and (cmd in HEAVY or not run_accepted(dmg)):
                     continue
                 out = root / "out"
                 shutil.rmtree(out, ignore_errors=True)

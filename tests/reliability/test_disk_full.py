@@ -1,0 +1,119 @@
+"""Disk full and read-only output on real file systems (issue 38): a tmpfs of 4 KiB, 16 KiB,
+200 KiB and 300 KiB (room for the space reserve, then full while sampling), and a read-only
+remount (between sessions: the kernel refuses it under open files). Each: a clear error naming
+the file, no half-made folder, no stray reserve or temporary file, and a run either gone or left
+resumable / clearly failed, which fit refuses with one line. Needs `mount` (root); skipped with
+the reason otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import uuid
+from pathlib import Path
+
+import pytest
+
+from omnibench.runs.check import run_problem
+from omnibench.runs.store import RESERVE_NAME, RunWriter
+from reliability.badinput import PROC, SIM, run_cli
+
+
+def _mount(path: Path, size: str) -> None:
+    path.mkdir(parents=True, exist_ok=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({(r.stderr or r.stdout).strip() or 'mount failed'}): needs root")
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    mounted: list[Path] = []
+
+    def make(size: str) -> Path:
+        d = tmp_path / f"disk-{uuid.uuid4().hex[:6]}"
+        _mount(d, size)
+        mounted.append(d)
+        return d
+
+    yield make
+    for d in mounted:
+        subprocess.run(["umount", "-l", str(d)], capture_output=True)
+
+
+def _leftovers(root: Path) -> list[str]:
+    return [str(p) for p in root.rglob("*") if p.name.endswith((".reserve", ".tmp"))]
+
+
+def _check_left_state(out: Path, err: str) -> None:
+    """The run folder is gone, or holds a run.json that says failed/running and fit refuses."""
+    assert "Traceback" not in err and "internal error" not in err, err
+    assert _leftovers(out) == []
+    runs = [d for d in out.iterdir() if d.is_dir()] if out.exists() else []
+    for d in runs:
+        assert (d / "run.json").is_file(), f"half-made run folder {d}: {sorted(p.name for p in d.iterdir())}"
+        status = json.loads((d / "run.json").read_text())["status"]
+        assert status in ("failed", "running"), status
+        why = run_problem(d)
+        assert why is not None and "\n" not in why and "not complete" in why
+
+
+@pytest.mark.parametrize("size, names", [
+    ("4k", ("procedure.toml", "robot.toml", "samples.csv", "run.json", "events.jsonl", "steps.jsonl")),
+    ("16k", ("procedure.toml", "robot.toml", "samples.csv", "run.json", "events.jsonl", "steps.jsonl",
+             RESERVE_NAME)),
+    ("200k", (RESERVE_NAME,)),
+    ("300k", ("samples.csv", "events.jsonl", "steps.jsonl", "run.json")),
+])
+def test_a_full_disk_at_every_point_is_one_clear_error(small_disk, size, names) -> None:
+    disk = small_disk(size)
+    out = disk / "runs"
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
+    assert code == 2, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("omnibench: error:") and "No space left on device" in last, err
+    assert any(f"/{n}: No space" in last for n in names), last  # names the file that failed
+    _check_left_state(out, err)
+
+
+def test_read_only_remount_after_an_interrupted_run_then_resume(small_disk, monkeypatch) -> None:
+    """The kernel refuses to remount a tmpfs read-only while files are open for writing (EBUSY),
+    so the disk goes read-only between sessions: the run was interrupted (Ctrl-C), then a new
+    run and a resume meet a read-only disk (an EROFS in mid-write is test_run_safety's case)."""
+    disk = small_disk("2m")
+    out = disk / "runs"
+    real = RunWriter.sample
+    calls = [0]
+
+    def sample(self, row):
+        calls[0] += 1
+        if calls[0] == 60:
+            raise KeyboardInterrupt
+        return real(self, row)
+
+    monkeypatch.setattr(RunWriter, "sample", sample)
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
+    monkeypatch.setattr(RunWriter, "sample", real)
+    assert code == 130, err
+    (run_dir,) = out.iterdir()
+    subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+    assert json.loads((run_dir / "run.json").read_text())["status"] == "aborted"
+    code, err = run_cli(["fit", str(run_dir), "--out", str(disk.parent / "m.toml")])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "not complete" in err, err
+    # a new run on the read-only disk: one line, nothing made
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Read-only file system" in err, err
+    assert list(out.iterdir()) == [run_dir]
+    # resuming on the read-only disk: one line naming the run, nothing changed
+    before = {p.name: p.read_bytes() for p in run_dir.iterdir()}
+    code, err = run_cli(["sweep", "--port", SIM, "--resume", str(run_dir)], 120)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Read-only file system" in err, err
+    assert str(run_dir) in err and "internal" not in err
+    assert {p.name: p.read_bytes() for p in run_dir.iterdir()} == before
+    # writable again: the resume completes the run and fit accepts it
+    subprocess.run(["mount", "-o", "remount,rw", str(disk)], check=True)
+    code, err = run_cli(["sweep", "--port", SIM, "--resume", str(run_dir)], 120)
+    assert code == 0, err
+    assert run_problem(run_dir) is None and _leftovers(disk) == []
