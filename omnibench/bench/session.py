@@ -17,7 +17,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from omnibench.bench.procedure import Plan, default_procedure_path, load_plan, stall_current
+from omnibench.bench.procedure import (
+    Plan,
+    default_procedure_path,
+    duty_limit,
+    load_plan,
+    stall_current,
+    step_distance_bound,
+)
 from omnibench.errors import UserError
 
 LABELS = {
@@ -63,7 +70,10 @@ def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
         "peak_voltage_V": peak_u * robot.V_batt,
         "peak_motor_current_A": stall_current(robot, peak_u),
         "peak_battery_current_A": peak_batt,
-        "limits": {"max_duty": robot.max_duty, "max_current_A": robot.max_current},
+        "limits": {"max_duty": robot.max_duty, "max_current_A": robot.max_current,
+                   "duty_limit": duty_limit(robot), "max_distance_m": plan.settings.get("max_distance_m")},
+        "max_step_distance_m": max((step_distance_bound(s, robot) for s in plan.steps
+                                    if s.world.mode == "ground" and s.schedule), default=0.0),
     }
 
 
@@ -80,8 +90,11 @@ def format_plan(plan: Plan, robot: Any) -> list[str]:
         lines.append(f"  {st.index:3d}  {st.label}: {bound}{st.max_time:.1f} s{extra}")
     lines.append(f"driving time: at most {s['max_driving_time_s']:.0f} s of board time "
                  f"(plus {s['operator_actions']} operator actions)")
+    if s["max_step_distance_m"] > 0:
+        lines.append(f"ground steps take the robot at most {s['max_step_distance_m']:.2f} m from their start (no-load speeds; "
+                     f"[space] max_distance {s['limits']['max_distance_m']:g} m, enforced from the encoders)")
     lines.append(f"peak voltage {s['peak_voltage_V']:.1f} V (duty {s['peak_duty']:.2f}, limit "
-                 f"{robot.max_duty:g}); peak motor current {s['peak_motor_current_A']:.1f} A at stall "
+                 f"{s['limits']['duty_limit']:.3g}); peak motor current {s['peak_motor_current_A']:.1f} A at stall "
                  f"(limit {robot.max_current:g} A); battery at most {s['peak_battery_current_A']:.1f} A")
     return lines
 

@@ -87,7 +87,10 @@ def main(argv: list[str] | None = None) -> None:
     debug = bool(os.environ.get("OMNIBENCH_DEBUG"))
     try:
         cli.main(args=argv, prog_name="omnibench", standalone_mode=False)
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, Terminated):  # click turns KeyboardInterrupt into Abort
+            click.echo("omnibench: terminated (SIGTERM)", err=True)
+            sys.exit(143)
         click.echo("omnibench: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:  # usage errors too: one line, not click's three
