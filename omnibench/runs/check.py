@@ -13,8 +13,9 @@ import numpy as np
 from omnibench.errors import UserError
 from omnibench.runs.record import read_info, refuse_duplicate_ids, sample_header
 
-#: Columns every sample must hold a number in (motor and battery currents may be unlogged).
-MEASURED = ("segment", "step", "t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4")
+#: Columns every sample must hold a number in (motor and battery currents may be unlogged; an
+#: empty `step` is a sample taken under no step's command, counted in a step's samples_rejected).
+MEASURED = ("segment", "t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4")
 
 
 def run_problem(path: Path) -> str | None:

@@ -156,3 +156,18 @@ def test_run_id_from_an_unsafe_folder_name_is_made_safe(tmp_path):
     w.finish("complete")
     rid = read_run(w.path).run_id
     assert "/" not in rid and " " not in rid and ".." not in rid and rid.startswith("my_run__1_")
+
+
+def test_a_sample_under_no_steps_command_does_not_make_the_run_unusable(tmp_path):
+    """The runner writes telemetry that queued before a step's ACK with an empty step (counted in
+    the step's samples_rejected): fit must not refuse the run for it."""
+    from omnibench.runs.check import run_problem
+
+    w = RunWriter.create(tmp_path, "step_response", counts_per_rev=980, extra={"steps_planned": 1})
+    w.sample({**_row(0, 0), "step": None})
+    for k in range(1, 6):
+        w.sample(_row(0, k))
+    w.step_complete({"step": 0, "duty": 0.5, "t_start": 0.01, "t_end": 0.05, "samples_rejected": 1})
+    w.finish("complete")
+    assert run_problem(w.path) is None
+    assert len(read_run(w.path).step_samples(0)) == 5
