@@ -145,6 +145,8 @@ def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
 
 #: errors of the output file system: reported in one line naming the file, run left resumable
 DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EIO}
+#: bytes claimed (run.json.reserve) before the robot moves, so a full disk can still mark run.json
+RESERVE_BYTES = 256 * 1024
 
 
 @contextlib.contextmanager
@@ -368,9 +370,12 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                 port=port, counts_per_rev=cpr,
                 extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
                        "settings": plan.settings, "wiring": _wiring_record(board)},
+                reserve=RESERVE_BYTES,  # room to mark the run on a full disk, claimed before the robot moves
             )
         except OSError as exc:
-            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}") from None
+            need = (f" (a run claims {RESERVE_BYTES // 1024} KiB before the robot moves, to mark run.json on a "
+                    "full disk)") if str(exc.filename or "").endswith(".reserve") else ""
+            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}{need}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
@@ -382,8 +387,8 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
-        meta_size = len(json.dumps(writer.metadata, default=str))
-        writer.reserve(max(256 * 1024, 8 * meta_size))  # before the robot moves
+        if resume is not None:  # a new run claimed its reserve as it was created
+            writer.reserve(max(RESERVE_BYTES, 8 * len(json.dumps(writer.metadata, default=str))))
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
         view = None

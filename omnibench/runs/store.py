@@ -202,9 +202,13 @@ class RunWriter:
         counts_per_rev: float | None = None,
         extra: Mapping[str, Any] | None = None,
         name: str | None = None,
+        reserve: int | None = None,
     ) -> "RunWriter":
         """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`),
-        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure)."""
+        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure). `reserve`: claim
+        that many bytes (at least 8x run.json) for the final run.json before returning (see
+        `reserve`). Any failure (e.g. a full disk) removes the half-made folder and raises."""
+        made_out = not Path(out).exists()
         if run_dir is None:
             path = new_run_dir(Path(out), name or procedure)
         else:
@@ -214,11 +218,23 @@ class RunWriter:
             if any(path.iterdir()):
                 raise UserError(f"{path}: run directory is not empty")
         try:
-            return cls._start(path, procedure, procedure_text=procedure_text, procedure_file=procedure_file,
-                              robot=robot, robot_text=robot_text, robot_file=robot_file, board=board, port=port,
-                              counts_per_rev=counts_per_rev, extra=extra)
+            w = cls._start(path, procedure, procedure_text=procedure_text, procedure_file=procedure_file,
+                           robot=robot, robot_text=robot_text, robot_file=robot_file, board=board, port=port,
+                           counts_per_rev=counts_per_rev, extra=extra)
+            if reserve:
+                try:
+                    w.reserve(max(reserve, 8 * len(dumps(w.metadata))))
+                except BaseException:
+                    w._close_files()
+                    raise
+            return w
         except BaseException:
             shutil.rmtree(path, ignore_errors=True)  # no half-made run folder (e.g. the disk is full)
+            if made_out and run_dir is None:
+                try:
+                    Path(out).rmdir()  # nor the --out folder made for it, when nothing else is there
+                except OSError:
+                    pass
             raise
 
     @classmethod

@@ -65,16 +65,34 @@ def _check_left_state(out: Path, err: str) -> None:
     ("16k", ("procedure.toml", "robot.toml", "samples.csv", "run.json", "events.jsonl", "steps.jsonl",
              RESERVE_NAME)),
     ("200k", (RESERVE_NAME,)),
-    ("300k", ("samples.csv", "events.jsonl", "steps.jsonl", "run.json")),
 ])
-def test_a_full_disk_at_every_point_is_one_clear_error(small_disk, size, names) -> None:
+def test_a_disk_too_small_to_start_a_run_leaves_nothing(small_disk, size, names) -> None:
+    """Creation or the space reserve fails before the robot moves: one line, no folder at all."""
     disk = small_disk(size)
+    out = disk / "runs"
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    line = err.strip()
+    assert line.startswith(f"omnibench: error: cannot create a run under {out}: cannot write ") and \
+        "No space left on device" in line, err
+    assert any(f"/{n}: No space" in line for n in names), line  # names the file that failed
+    if size == "200k":
+        assert "claims 256 KiB before the robot moves" in line
+    assert list(disk.iterdir()) == []  # no half-made run folder, no --out folder made for it
+
+
+def test_a_disk_that_fills_while_driving_leaves_a_failed_resumable_run(small_disk) -> None:
+    """300 KiB: the reserve fits, samples.csv fills the disk: the motors stop, the reserve makes
+    room to mark run.json failed, no reserve left, fit refuses the run with one line."""
+    disk = small_disk("300k")
     out = disk / "runs"
     code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
     assert code == 2, err
     last = err.strip().splitlines()[-1]
-    assert last.startswith("omnibench: error:") and "No space left on device" in last, err
-    assert any(f"/{n}: No space" in last for n in names), last  # names the file that failed
+    (run_dir,) = out.iterdir()
+    assert last == f"omnibench: error: cannot write {run_dir / 'samples.csv'}: No space left on device", err
+    assert "motors stopped" in err and f"--resume {run_dir} once there is space" in err
+    assert json.loads((run_dir / "run.json").read_text())["status"] == "failed"
     _check_left_state(out, err)
 
 
