@@ -385,6 +385,9 @@ def check_step(rec: dict[str, Any], where: str, info: RunInfo) -> None:
         p = nonfinite(value, key)
         if p:
             raise RunFileError(f"{where}: {p}: holds a non-finite or huge number")
+    for a, b in (("t_start", "t_end"), ("t_start", "t_drive_end"), ("t_drive_end", "t_end")):
+        if isinstance(rec.get(a), (int, float)) and isinstance(rec.get(b), (int, float)) and rec[b] < rec[a]:
+            raise RunFileError(f"{where}: {b}: {_show(rec[b])} is before {a} {_show(rec[a])}")
     if info.steps_planned is not None and rec["step"] >= info.steps_planned:
         raise RunFileError(f"{where}: step: {rec['step']} is out of range (the run plans steps 0 to "
                            f"{info.steps_planned - 1})")
