@@ -48,6 +48,7 @@ def procedure_files(folder: Path | None) -> dict[str, Path]:
 
 def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
     """Run directories in runs_dir by procedure, oldest first, each with its status."""
+    from omnibench.runs.check import run_problem
     from omnibench.runs.record import read_info
 
     found: dict[str, list[tuple[Path, str]]] = {}
@@ -56,6 +57,10 @@ def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
             info = read_info(run_json.parent)
         except UserError as exc:
             raise UserError(f"{exc}; move that run out of {runs_dir}") from None
+        why = run_problem(run_json.parent) if info.complete else None  # kept as is: the analysis must accept it
+        if why:
+            where = "" if why.startswith(str(run_json.parent)) else f"{run_json.parent}: "
+            raise UserError(f"{where}{why}; move that run out of {runs_dir}")
         found.setdefault(info.procedure, []).append((run_json.parent, info.status))
     return found
 
