@@ -287,22 +287,6 @@ def _prepare_kernel(echo: Callable[[str], None] | None) -> None:
         echo(f"physics kernel ready ({time.monotonic() - t0:.0f} s)")
 
 
-class RunLog:
-    """log.txt in the run folder: what the terminal said, with UTC times (also under -q)."""
-
-    def __init__(self, run_dir: str | Path) -> None:
-        self.path = Path(run_dir) / "log.txt"
-
-    def __call__(self, line: str) -> None:
-        import datetime as dt
-
-        try:
-            with open(self.path, "a", encoding="utf-8") as fh:
-                fh.write(f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%dT%H:%M:%S.%fZ} {line}\n")
-        except OSError:
-            pass
-
-
 def _wiring_record(board: Any) -> dict[str, Any] | None:
     """The wiring the run used (None: straight, no wiring file)."""
     from dataclasses import asdict
@@ -339,6 +323,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     from omnibench.bench.runner import Runner, Terminated, safe_stop, sigterm_as_interrupt
     from omnibench.runs import RunWriter
     from omnibench.runs.record import read_info, read_steps
+    from omnibench.runs.store import RunLog
 
     def steps_done(path: Path) -> list[int]:
         return [int(r["step"]) for r in read_steps(path, read_info(path))]
@@ -382,7 +367,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
     disk_full = False
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
     lock.__enter__()
-    log = RunLog(writer.path)
+    log = RunLog(writer.path)  # log.txt: what the terminal said
     log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
     restore: Callable[[], Any] = lambda: None
     try:

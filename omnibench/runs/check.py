@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ def run_problem(path: Path) -> str | None:
     """Why run directory `path` cannot be analysed (None: it can). Every file is validated by
     the one reader (omnibench.runs.record): the reason names the file, the line and the field."""
     from omnibench.runs import read_run
-    from omnibench.runs.record import missing_for_analysis
+    from omnibench.runs.record import duties_disagree, missing_for_analysis
 
     try:
         run = read_run(path)
@@ -43,7 +42,7 @@ def run_problem(path: Path) -> str | None:
         bad = run.samples[c].isna().to_numpy()
         if bad.any():
             return f"{path / 'samples.csv'}:{int(np.argmax(bad)) + 2}: {c}: holds no number"
-    why = _duties_disagree(path, run)
+    why = duties_disagree(path, run.steps.to_dict("records"), run.samples)
     if why:
         return why
     planned = info.steps_planned
@@ -55,40 +54,6 @@ def run_problem(path: Path) -> str | None:
             s = run.step_samples(int(st["step"]))
             if not len(s) or float(s["t"].max()) < t_end - 1e-6:
                 return f"samples.csv is cut: step {int(st['step'])} has no samples up to its end"
-    return None
-
-
-#: A step record's duty and the duty its samples report agree within this (wire resolution ~3e-5).
-DUTY_TOLERANCE = 2e-3
-
-
-def _duties_disagree(path: Path, run: Any) -> str | None:
-    """'steps.jsonl:N: uJ: ...' when a hold or timed step's recorded duty is not the duty its
-    own samples report (the largest in magnitude over the step): the record was edited or
-    belongs to other samples, and the analysis would fit one against the other."""
-    if not len(run.steps) or "kind" not in run.steps.columns:
-        return None
-    from omnibench.runs.record import read_jsonl
-
-    line = {int(rec["step"]): n for n, rec in read_jsonl(path / "steps.jsonl")}
-    for _, st in run.steps.iterrows():
-        if st.get("kind") not in ("hold", "timed"):
-            continue
-        s = run.step_samples(int(st["step"]))
-        if not len(s):
-            continue
-        for j in range(1, 5):
-            u = st.get(f"u{j}")
-            if not isinstance(u, (int, float)) or isinstance(u, bool) or not math.isfinite(u):
-                continue
-            col = s[f"u{j}"].to_numpy(dtype=float)
-            col = col[np.isfinite(col)]
-            if not len(col):
-                continue
-            seen = float(col[np.argmax(np.abs(col))])
-            if abs(seen - u) > DUTY_TOLERANCE:
-                return (f"{path / 'steps.jsonl'}:{line.get(int(st['step']), '?')}: u{j}: {u:g} is not the duty "
-                        f"step {int(st['step'])}'s samples report ({seen:.4g})")
     return None
 
 

@@ -410,6 +410,37 @@ def missing_for_analysis(run_dir: Path, info: RunInfo) -> str | None:
     return None
 
 
+#: A step record's duty and the duty its samples report agree within this (wire resolution ~3e-5).
+DUTY_TOLERANCE = 2e-3
+
+
+def duties_disagree(run_dir: Path, steps: Sequence[Mapping[str, Any]], samples: pd.DataFrame) -> str | None:
+    """'steps.jsonl:N: uJ: ...' when a hold or timed step's recorded duty is not the duty its own
+    samples report (the largest in magnitude over the step, in the segment that completed it):
+    the record was edited or belongs to other samples, and the analysis would fit one against
+    the other."""
+    path = run_dir / "steps.jsonl"
+    line = {int(rec["step"]): n for n, rec in read_jsonl(path)}
+    for st in steps:
+        if st.get("kind") not in ("hold", "timed") or not len(samples):
+            continue
+        k, seg = int(st["step"]), int(st["segment"])
+        s = samples[(samples["step"] == k) & (samples["segment"] == seg)]
+        for j in range(1, 5):
+            u = st.get(f"u{j}")
+            if not isinstance(u, (int, float)) or isinstance(u, bool) or not math.isfinite(u):
+                continue
+            col = s[f"u{j}"].to_numpy(dtype=float)
+            col = col[np.isfinite(col)]
+            if not len(col):
+                continue
+            seen = float(col[np.argmax(np.abs(col))])
+            if abs(seen - u) > DUTY_TOLERANCE:
+                return (f"{path}:{line.get(k, '?')}: u{j}: {u:g} is not the duty step {k}'s samples "
+                        f"report ({seen:.4g})")
+    return None
+
+
 def read_steps(run_dir: Path, info: RunInfo) -> list[dict[str, Any]]:
     """The validated step records of steps.jsonl in step order; a step recorded twice is refused."""
     path = run_dir / "steps.jsonl"
@@ -491,8 +522,12 @@ def check_resumable(run_dir: Path | str, procedure: str | None = None) -> tuple[
     if info.complete:
         raise UserError(f"{run_dir}: run is already complete; nothing to resume")
     steps = read_steps(run_dir, info)
-    read_samples(run_dir / "samples.csv")
+    samples = read_samples(run_dir / "samples.csv")
     read_jsonl(run_dir / "events.jsonl")
+    # the steps already done are kept as they are: the analysis must accept them after the resume
+    why = missing_for_analysis(run_dir, info) or duties_disagree(run_dir, steps, samples)
+    if why:
+        raise RunFileError(why)
     return info, {int(r["step"]) for r in steps}
 
 

@@ -461,6 +461,22 @@ def append_event(run_dir: Path | str, kind: str, **fields: Any) -> None:
         fh.write(dumps({"kind": kind, "host_time": utc_now(), "t": None, "step": None, **fields}) + "\n")
 
 
+class RunLog:
+    """log.txt in the run folder: what the terminal said, with UTC times (also under -q). A
+    line that cannot be written (a full disk) is dropped: the log is a convenience, the run's
+    record is run.json, samples.csv, events.jsonl and steps.jsonl."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / "log.txt"
+
+    def __call__(self, line: str) -> None:
+        try:
+            with open(self.path, "a", encoding="utf-8") as fh:
+                fh.write(f"{utc_now()} {line}\n")
+        except OSError:
+            pass
+
+
 @contextlib.contextmanager
 def named(path: Path) -> Iterator[None]:
     """Give an OSError raised inside the block the file name `path` when it has none (a write
