@@ -126,6 +126,18 @@ def test_resume_validates_before_writing_anything(runs, tmp_path) -> None:
     (d / "run.json").write_text("[]")
     code, err = run_cli(["sweep", "--port", SIM, "--resume", str(d)])
     assert code == 2 and "not a run description" in err and "internal" not in err
+    code, err = run_cli(["campaign", "--port", SIM, "--out", str(tmp_path), "--resume"])
+    assert code == 2 and len(err.strip().splitlines()) == 1 and f"{d / 'run.json'}:1: not a run description" in err
+
+
+def test_resume_refuses_a_step_index_out_of_range_before_writing(runs, tmp_path) -> None:
+    d = _copy(runs, tmp_path)
+    _edit_meta(d, status="aborted")
+    _edit_step(d, 1, step=99)
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    code, err = run_cli(["sweep", "--port", SIM, "--resume", str(d)])
+    assert code == 2 and f"{d / 'steps.jsonl'}:2: step: 99 is out of range" in err, err
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
 
 
 def test_resume_of_a_run_cut_inside_the_csv_header_gives_a_run_fit_accepts(runs, tmp_path) -> None:
