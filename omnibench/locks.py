@@ -96,10 +96,16 @@ def folder_lock(folder: str | os.PathLike, what: str = "a campaign") -> Iterator
 
     folder = Path(folder)
     made = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
     path = folder / LOCK_FILE
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {folder}: cannot make the folder ({exc.strerror or exc})") from None
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise UserError(f"--out {folder}: cannot write {path.name} there ({exc.strerror or exc})") from None
         try:
             lock_exclusive(fd)
         except Locked as exc:

@@ -121,3 +121,26 @@ def test_a_second_campaign_into_one_folder_is_refused_naming_the_first(tmp_path)
                              "--target-se", "a=5%"])
         assert code == 2 and f"process {os.getpid()}" in err, err
     assert not out.exists()  # the lock file goes with the first campaign (it made the folder)
+
+
+def test_two_campaign_processes_into_one_folder_the_second_is_refused(tmp_path) -> None:
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "campaign"
+    procs = ROOT / "tests" / "bench" / "procedures" / "campaign"
+    first = subprocess.Popen([sys.executable, "-m", "omnibench", "-q", "campaign", "--port",
+                              "sim://?seed=2&clock=realtime", "--out", str(out), "--procedures", str(procs)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / locks.LOCK_FILE).exists() and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert first.poll() is None, first.stderr.read() if first.stderr else ""
+        code, err = run_cli(["campaign", "--port", "sim://?seed=3", "--out", str(out), "--resume"])
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert f"process {first.pid}" in err and "a campaign is writing into this folder" in err
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.wait(60)
