@@ -50,11 +50,14 @@ def info(port: str, timeout: float, as_json: bool) -> None:
 def _latched_faults(board) -> list[str] | None:
     """Names of the faults latched on the board now, read from one telemetry sample (the motors
     stay stopped; nothing is cleared: a run asks the operator before it clears them)."""
-    board.configure(telemetry_hz=min(50, int(board.hello.max_telemetry_rate or 50)))
     try:
-        sample = next(iter(board.samples(0.0)), None)
-    finally:
-        board.configure(telemetry_hz=0)
+        board.configure(telemetry_hz=min(50, int(board.hello.max_telemetry_rate or 50)))
+        try:
+            sample = next(iter(board.samples(0.0)), None)
+        finally:
+            board.configure(telemetry_hz=0)
+    except BoardError:  # no telemetry: the identity is still worth printing
+        return None
     return board.fault_names(sample.faults) if sample is not None else None
 
 
@@ -67,9 +70,11 @@ def _print_info(out: dict, port: str) -> None:
     click.echo(f"  capabilities: {', '.join(out['capabilities']) or 'none'}")
     if out["ping_ms"] is not None:
         click.echo(f"  command round trip: {out['ping_ms']:.2f} ms (median of 5)")
-    if out.get("faults") is not None:
-        click.echo("  faults latched: " + (", ".join(out["faults"]) + " (the next run asks before clearing them)"
-                                           if out["faults"] else "none"))
+    if out["compatible"]:
+        faults = out.get("faults")
+        click.echo("  faults latched: " + ("unknown (no telemetry sample)" if faults is None else
+                                           ", ".join(faults) + " (the next run asks before clearing them)"
+                                           if faults else "none"))
 
 
 @command.command(name="monitor")
