@@ -135,3 +135,55 @@ def test_read_only_remount_after_an_interrupted_run_then_resume(small_disk, monk
     code, err = run_cli(["sweep", "--port", SIM, "--resume", str(run_dir)], 120)
     assert code == 0, err
     assert run_problem(run_dir) is None and _leftovers(disk) == []
+
+
+class _FullFile:
+    """A file whose writes fail as on a full disk (an OSError that names no file)."""
+
+    def __init__(self, real) -> None:
+        self.real = real
+
+    def write(self, text: str) -> int:
+        raise OSError(28, "No space left on device")
+
+    def __getattr__(self, name: str):
+        return getattr(self.real, name)
+
+
+@pytest.mark.parametrize("point", ["steps.jsonl", "events.jsonl", "run.json"])
+def test_a_full_disk_at_each_later_write_names_the_file(tmp_path, monkeypatch, point) -> None:
+    """The disk fills at the first step record, an event, or a run.json rewrite in mid-run: the
+    error line names that file (a full disk's OSError names none), the run is left failed or
+    running (fit refuses it with one line), no reserve or temporary file is left."""
+    import omnibench.runs.store as store
+
+    real_complete, real_save = RunWriter.step_complete, RunWriter.save_metadata
+    state = {"armed": False}
+
+    def step_complete(self, record):
+        if point == "steps.jsonl":
+            self._steps = _FullFile(self._steps)
+        if point == "events.jsonl":
+            self._events = _FullFile(self._events)
+        if point == "run.json":
+            state["armed"] = True
+        return real_complete(self, record)
+
+    def save_metadata(self):
+        if state["armed"]:
+            state["armed"] = False
+            raise OSError(28, "No space left on device", str(self.path / "run.json"))
+        return real_save(self)
+
+    monkeypatch.setattr(RunWriter, "step_complete", step_complete)
+    monkeypatch.setattr(RunWriter, "save_metadata", save_metadata)
+    out = tmp_path / "runs"
+    code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
+    monkeypatch.setattr(RunWriter, "step_complete", real_complete)
+    monkeypatch.setattr(RunWriter, "save_metadata", real_save)
+    assert code == 2, err
+    (run_dir,) = out.iterdir()
+    assert err.strip().splitlines()[-1] == f"omnibench: error: cannot write {run_dir / point}: No space left on device"
+    assert "motors stopped" in err and "internal" not in err
+    _check_left_state(out, err)
+    assert store.RESERVE_NAME not in [p.name for p in run_dir.iterdir()]
