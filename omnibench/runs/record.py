@@ -437,7 +437,7 @@ def duties_disagree(run_dir: Path, steps: Sequence[Mapping[str, Any]], samples: 
             seen = float(col[np.argmax(np.abs(col))])
             if abs(seen - u) > DUTY_TOLERANCE:
                 return (f"{path}:{line.get(k, '?')}: u{j}: {u:g} is not the duty step {k}'s samples "
-                        f"report ({seen:.4g})")
+                        f"report in samples.csv ({seen:.4g})")
     return None
 
 

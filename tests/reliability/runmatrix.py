@@ -1,6 +1,7 @@
-"""The corrupted-run-file matrix (issue 38): every field of run.json and steps.jsonl x a bad kind
-(wrong type, NaN, inf, huge, negative, missing, a path trick) over the commands that read runs:
-fit, validate-energy, predict, diagnose, `sweep --resume` and `campaign --resume`.
+"""The corrupted-run-file matrix (issue 38): every field of run.json and steps.jsonl, and every
+column of a samples.csv row, x a bad kind (wrong type, NaN, inf, huge, negative, missing, a
+path trick) over the commands that read runs: fit, validate-energy, predict, diagnose,
+`sweep --resume` and `campaign --resume`.
 
 Each case is a copy of a good run with one field of one file damaged. It is classified:
 
@@ -59,7 +60,7 @@ def bad_value(kind: str, good: Any) -> Any:
 
 @dataclass
 class Damage:
-    file: str   # "run.json" | "steps.jsonl"
+    file: str   # "run.json" | "steps.jsonl" | "samples.csv"
     field: str
     kind: str
     run: str    # "sweep" | "energy"
@@ -78,6 +79,14 @@ def _set(doc: dict[str, Any], key: str, value: Any) -> None:
 
 def apply(d: Path, dmg: Damage, good: Any) -> None:
     """Damage run folder `d` (a copy): one field of one file (line 2 of steps.jsonl, or its only line)."""
+    if dmg.file == "samples.csv":
+        lines = (d / "samples.csv").read_text().splitlines()
+        header = lines[0].split(",")
+        cells = lines[SAMPLE_LINE - 1].split(",")
+        cells[header.index(dmg.field)] = SAMPLE_BAD[dmg.kind]
+        lines[SAMPLE_LINE - 1] = ",".join(cells)
+        (d / "samples.csv").write_text("\n".join(lines) + "\n")
+        return
     value = bad_value(dmg.kind, good)
     if dmg.file == "run.json":
         doc = json.loads((d / "run.json").read_text())
@@ -90,6 +99,12 @@ def apply(d: Path, dmg: Damage, good: Any) -> None:
         _set(rec, dmg.field, value)
         lines[k] = json.dumps(rec, allow_nan=True)
         (d / "steps.jsonl").write_text("\n".join(lines) + "\n")
+
+
+#: samples.csv: the line damaged (a sample of the first step) and the text each kind writes.
+SAMPLE_LINE = 6
+SAMPLE_BAD = {"wrong type": "abc", "nan": "nan", "inf": "inf", "huge": "1e308", "negative": "-1",
+              "missing": "", "path trick": f"x/../../../../{ESCAPE}"}
 
 
 def _line(lines: list[str]) -> int:
@@ -108,6 +123,9 @@ def damages(runs: dict[str, Path]) -> list[tuple[Damage, Any]]:
             for key, good in doc.items():
                 for kind in KINDS:
                     out.append((Damage(file, key, kind, which), good))
+        for col in (d / "samples.csv").read_text().splitlines()[0].split(","):
+            for kind in KINDS:
+                out.append((Damage("samples.csv", col, kind, which), None))
     return out
 
 
