@@ -8,21 +8,15 @@ import math
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-import numpy as np
-
 from omnibench.errors import UserError
 from omnibench.runs.record import read_info, refuse_duplicate_ids, sample_header
-
-#: Columns every sample must hold a number in (motor and battery currents may be unlogged; an
-#: empty `step` is a sample taken under no step's command, counted in a step's samples_rejected).
-MEASURED = ("segment", "t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4")
 
 
 def run_problem(path: Path) -> str | None:
     """Why run directory `path` cannot be analysed (None: it can). Every file is validated by
     the one reader (omnibench.runs.record): the reason names the file, the line and the field."""
     from omnibench.runs import read_run
-    from omnibench.runs.record import duties_disagree, missing_for_analysis
+    from omnibench.runs.record import duties_disagree, missing_for_analysis, unmeasured
 
     try:
         run = read_run(path)
@@ -38,10 +32,9 @@ def run_problem(path: Path) -> str | None:
     why = missing_for_analysis(path, info)
     if why:
         return why
-    for c in MEASURED:
-        bad = run.samples[c].isna().to_numpy()
-        if bad.any():
-            return f"{path / 'samples.csv'}:{int(np.argmax(bad)) + 2}: {c}: holds no number"
+    why = unmeasured(path, run.samples)
+    if why:
+        return why
     why = duties_disagree(path, run.steps.to_dict("records"), run.samples)
     if why:
         return why

@@ -410,6 +410,21 @@ def missing_for_analysis(run_dir: Path, info: RunInfo) -> str | None:
     return None
 
 
+#: Columns every sample must hold a number in (motor and battery currents may be unlogged; an
+#: empty `step` is a sample taken under no step's command, counted in a step's samples_rejected).
+MEASURED = ("segment", "t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4")
+
+
+def unmeasured(run_dir: Path, samples: pd.DataFrame) -> str | None:
+    """'samples.csv:N: column: holds no number' for the first sample lacking a measured value
+    (rows are written whole, so an empty measured cell is damage, not a crash), else None."""
+    for c in MEASURED:
+        bad = samples[c].isna().to_numpy()
+        if bad.any():
+            return f"{run_dir / 'samples.csv'}:{int(np.argmax(bad)) + 2}: {c}: holds no number"
+    return None
+
+
 #: A step record's duty and the duty its samples report agree within this (wire resolution ~3e-5).
 DUTY_TOLERANCE = 2e-3
 
@@ -525,7 +540,8 @@ def check_resumable(run_dir: Path | str, procedure: str | None = None) -> tuple[
     samples = read_samples(run_dir / "samples.csv")
     read_jsonl(run_dir / "events.jsonl")
     # the steps already done are kept as they are: the analysis must accept them after the resume
-    why = missing_for_analysis(run_dir, info) or duties_disagree(run_dir, steps, samples)
+    why = (missing_for_analysis(run_dir, info) or unmeasured(run_dir, samples)
+           or duties_disagree(run_dir, steps, samples))
     if why:
         raise RunFileError(why)
     return info, {int(r["step"]) for r in steps}
