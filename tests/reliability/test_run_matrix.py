@@ -2,7 +2,7 @@
 and steps.jsonl is a one-line error naming file, line and field, or a correct result; never an
 internal error, a silent drop or a write outside --out/--plots.
 
-The matrix test runs a subset (every refused case of every 9th damage through the commands, and
+The matrix test runs a subset (every refused case of every 13th damage through the commands, and
 a few accepted ones); benchmarks/reliability.py --only runs runs the whole matrix.
 """
 
@@ -177,7 +177,7 @@ def test_safe_names() -> None:
 
 
 def test_run_matrix_subset_every_case_clear_or_correct(tmp_path) -> None:
-    """Refused cases of every 9th damage through all six commands, accepted ones of a few damages
+    """Refused cases of every 13th damage through all six commands, accepted ones of a few damages
     through fit, predict, validate-energy and resume: counted, and none internal, silent, unclear
     or escaped."""
     accepted = {("steps.jsonl", "label", "path trick"), ("run.json", "procedure_file", "path trick"),
@@ -186,9 +186,9 @@ def test_run_matrix_subset_every_case_clear_or_correct(tmp_path) -> None:
     def run_accepted(dmg: Damage) -> bool:
         return (dmg.file, dmg.field, dmg.kind) in accepted
 
-    counts, worst = run_matrix(tmp_path, select=lambda i, dmg, cmd: i % 9 == 0 or run_accepted(dmg),
+    counts, worst = run_matrix(tmp_path, select=lambda i, dmg, cmd: i % 13 == 0 or run_accepted(dmg),
                                run_accepted=run_accepted)
     assert worst == []
     t = total(counts)
-    assert t["clear"] > 150 and t["correct"] >= 3
+    assert t["clear"] > 120 and t["correct"] >= 3
     assert all(sum(counts[c].values()) > 0 for c in COMMANDS), counts
