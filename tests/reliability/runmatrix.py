@@ -24,7 +24,6 @@ tests/reliability/test_run_matrix.py (a subset) and benchmarks/reliability.py (a
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import shutil
