@@ -10,6 +10,10 @@
 3. byte-error rate a sweep survives (sim://, fast clock), with the steady-speed deviation.
 4. watchdog stop time for a hung host (real-time pty, runner hung mid-hold).
 5. bad input: clear / silent / internal / hang / overwrite (tests/reliability/badinput.py).
+6. corrupted run files: every field of run.json and steps.jsonl x wrong type, NaN, inf, huge,
+   negative, missing, path trick, over fit, validate-energy, predict, diagnose, resume and
+   campaign (tests/reliability/runmatrix.py): clear / correct / unclear / silent / internal /
+   escape / hang per command.
 """
 
 from __future__ import annotations
@@ -169,15 +173,41 @@ def bad_input() -> None:
         print(f"  {line}")
 
 
+def run_files(accepted_every: int = 1) -> None:
+    from reliability.runmatrix import damages, run_matrix, total
+
+    t0 = time.process_time()
+    keep: set[str] = set()
+    if accepted_every > 1:
+        tmp = Path(tempfile.mkdtemp(prefix="omnibench-runmatrix-names-"))
+        try:
+            from reliability.badinput import make_fixture
+
+            names = [d.name for d, _ in damages(make_fixture(tmp))]
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        keep = set(names[::accepted_every])
+        print(f"  (cases the reader accepts run for every {accepted_every}th damage only: whole analyses)")
+    counts, worst = run_matrix(progress=lambda line: print(f"  {line}", flush=True),
+                               run_accepted=(lambda dmg: dmg.name in keep) if keep else (lambda dmg: True))
+    for cmd, per in counts.items():
+        print(f"  {cmd}: cases {sum(per.values())}, " + ", ".join(f"{k} {v}" for k, v in per.items()))
+    t = total(counts)
+    print(f"corrupted run files: cases {sum(t.values())}, " + ", ".join(f"{k} {v}" for k, v in t.items())
+          + f" ({time.process_time() - t0:.0f} s CPU)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sweeps", type=int, default=20)
     ap.add_argument("--frames", type=int, default=200_000)
-    ap.add_argument("--quick", action="store_true", help="2 sweeps, 20000 frames")
-    ap.add_argument("--only", choices=["stale", "integrity", "errors", "hung", "bad"], default=None)
+    ap.add_argument("--quick", action="store_true", help="2 sweeps, 20000 frames, accepted run files every 4th")
+    ap.add_argument("--accepted-every", type=int, default=1,
+                    help="run-file matrix: run the cases the reader accepts (whole analyses) for every Nth damage")
+    ap.add_argument("--only", choices=["stale", "integrity", "errors", "hung", "bad", "runs"], default=None)
     a = ap.parse_args()
     if a.quick:
-        a.sweeps, a.frames = 2, 20_000
+        a.sweeps, a.frames, a.accepted_every = 2, 20_000, max(a.accepted_every, 4)
     tmp = Path(tempfile.mkdtemp(prefix="omnibench-reliability-"))
     try:
         if a.only in (None, "integrity"):
@@ -188,6 +218,8 @@ def main() -> None:
             hung_host(tmp)
         if a.only in (None, "bad"):
             bad_input()
+        if a.only in (None, "runs"):
+            run_files(a.accepted_every)
         if a.only in (None, "stale"):
             stale(tmp, a.sweeps)
     finally:

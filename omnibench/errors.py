@@ -18,3 +18,8 @@ class BoardError(UserError):
 
     def __init__(self, message: str, *, exit_code: int = 3) -> None:
         super().__init__(message, exit_code=exit_code)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a run: handled like Ctrl-C (motors stopped, run marked aborted, data kept)
+    but recorded as "terminated (SIGTERM)", not as the operator's Ctrl-C."""

@@ -7,7 +7,14 @@ from /proc/locks, so the refusal can say which program to stop.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 try:
     import fcntl
@@ -75,3 +82,66 @@ def lock_directory(path: str | os.PathLike) -> int:
         os.close(fd)
         raise
     return fd
+
+
+LOCK_FILE = "omnibench.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | os.PathLike, what: str = "a campaign") -> Iterator[Path]:
+    """Hold `folder`/omnibench.lock (created, holding our PID) while a process writes into the
+    folder: a second writer is refused with UserError naming the first's PID and command line.
+    The lock file is removed on exit (checked by inode, so a waiting opener never locks a stale one)."""
+    from omnibench.errors import UserError
+
+    folder = Path(folder)
+    made = not folder.exists()
+    path = folder / LOCK_FILE
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {folder}: cannot make the folder ({exc.strerror or exc})") from None
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise UserError(f"--out {folder}: cannot write {path.name} there ({exc.strerror or exc})") from None
+        try:
+            lock_exclusive(fd)
+        except Locked as exc:
+            os.close(fd)
+            raise UserError(f"{folder}: {what} is writing into this folder ({exc.holder}); wait for it to end, "
+                            "or give another --out") from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder removed it as we opened it: take the new one
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+    except OSError:
+        pass  # the flock holds; the PID in the file is only for a person looking
+    try:
+        yield path
+    finally:
+        try:
+            path.unlink()
+            if made:
+                folder.rmdir()  # a refused or failed run into a new folder leaves nothing behind
+        except OSError:
+            pass
+        os.close(fd)
+
+
+def holds_out_folder(what: str) -> Callable[[F], F]:
+    """Decorator: `fn(port, out, ...)` runs holding `folder_lock(out, what)`."""
+    def deco(fn: F) -> F:
+        @functools.wraps(fn)
+        def wrapper(port: Any, out: Any, *args: Any, **kwargs: Any) -> Any:
+            with folder_lock(out, what):
+                return fn(port, out, *args, **kwargs)
+        return wrapper  # type: ignore[return-value]
+    return deco

@@ -222,14 +222,11 @@ class Observations:
             if not found:
                 raise UserError(f"{p}: no run directory here (no run.json)")
             dirs.extend(found)
-        items = []
-        seen: set[str] = set()
-        for d in dict.fromkeys(Path(x).resolve() for x in dirs):
-            run = read_run(d)
-            rid = run_key(run, seen)
-            seen.add(rid)
-            items.append(_from_run(run, robot, rid))
-        return cls.concat(items)
+        from omnibench.runs.record import refuse_duplicate_ids
+
+        runs = [read_run(d) for d in dict.fromkeys(Path(x).resolve() for x in dirs)]
+        refuse_duplicate_ids([r.info for r in runs if r.info is not None])  # a copied run counts once
+        return cls.concat([_from_run(run, robot, run.run_id) for run in runs])
 
 
 # --------------------------------------------------------------------------------- readers
@@ -279,18 +276,10 @@ def _col(steps: pd.DataFrame, name: str) -> pd.Series:
     return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
 
 
-def run_key(run: Any, taken: set[str] | frozenset[str] = frozenset()) -> str:
-    """The key a run's rows carry: its run id, made unique against `taken` with its folder
-    (older runs, and two runs copied from one, can share an id: never merge them by id alone)."""
-    rid = str(run.metadata.get("run_id") or run.path.name)
-    if rid not in taken:
-        return rid
-    rid = f"{rid}@{run.path.parent.name}/{run.path.name}"
-    n = 2
-    key = rid
-    while key in taken:
-        key, n = f"{rid}#{n}", n + 1
-    return key
+def run_key(run: Any) -> str:
+    """The key a run's rows carry: its run id (validated by omnibench.runs: a file-name safe
+    name; two folders holding one id are refused, never merged or counted twice)."""
+    return str(getattr(run, "run_id", None) or run.metadata.get("run_id") or run.path.name)
 
 
 def supply_at_rest(samples: pd.DataFrame) -> float:

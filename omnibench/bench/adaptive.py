@@ -41,6 +41,7 @@ from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence
 from omnibench.bench.campaign import Analyse
 from omnibench.bench.procedure import World
 from omnibench.errors import UserError
+from omnibench.locks import holds_out_folder
 
 MAX_ROUNDS = 10
 PILOT = 0.5
@@ -473,12 +474,12 @@ def _value(robot: Any, p: str) -> float:
 # --------------------------------------------------------------------------- the campaign on a port
 def _append_event(run_dir: Path, kind: str, rec: Mapping[str, Any]) -> None:
     """Add a design decision to a finished run's event log (same line format as the runner's)."""
-    from omnibench.runs.store import dumps, utc_now
+    from omnibench.runs.store import append_event
 
-    with open(Path(run_dir) / "events.jsonl", "a", encoding="utf-8") as fh:
-        fh.write(dumps({"kind": kind, "host_time": utc_now(), "t": None, "step": None, **rec}) + "\n")
+    append_event(run_dir, kind, **rec)
 
 
+@holds_out_folder("an adaptive campaign")  # two campaigns never write into one --out
 def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file: Path | None = None,
                           procedures_dir: Path | None = None, costs: Costs = Costs(), limits: Limits = Limits(),
                           current: bool = True, budget_minutes: float | None = None,

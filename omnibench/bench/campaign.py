@@ -19,6 +19,7 @@ from typing import Any
 from omnibench import __version__
 from omnibench.bench.procedure import PROCEDURES, default_procedure_path
 from omnibench.errors import UserError
+from omnibench.locks import holds_out_folder
 
 COMMAND_OF = {
     "upside_down_sweep": "sweep",
@@ -47,16 +48,24 @@ def procedure_files(folder: Path | None) -> dict[str, Path]:
 
 def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
     """Run directories in runs_dir by procedure, oldest first, each with its status."""
+    from omnibench.runs.check import run_problem
+    from omnibench.runs.record import read_info
+
     found: dict[str, list[tuple[Path, str]]] = {}
     for run_json in sorted(runs_dir.glob("*/run.json")) if runs_dir.is_dir() else []:
         try:
-            meta = json.loads(run_json.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            raise UserError(f"{run_json}: unreadable run.json; move that run out of {runs_dir}") from None
-        found.setdefault(str(meta.get("procedure")), []).append((run_json.parent, str(meta.get("status"))))
+            info = read_info(run_json.parent)
+        except UserError as exc:
+            raise UserError(f"{exc}; move that run out of {runs_dir}") from None
+        why = run_problem(run_json.parent) if info.complete else None  # kept as is: the analysis must accept it
+        if why:
+            where = "" if why.startswith(str(run_json.parent)) else f"{run_json.parent}: "
+            raise UserError(f"{where}{why}; move that run out of {runs_dir}")
+        found.setdefault(info.procedure, []).append((run_json.parent, info.status))
     return found
 
 
+@holds_out_folder("a campaign")  # two campaigns never write into one --out
 def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, procedures_dir: Path | None = None,
                  echo: Callable[[str], None] = print, progress: bool = False,
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,

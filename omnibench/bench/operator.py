@@ -97,6 +97,14 @@ def parse_length(text: str, where: str) -> float:
     return v
 
 
+def parse_distance(text: str, where: str) -> float:
+    """A tape distance (unsigned, m): as parse_length, and refused when negative."""
+    v = parse_length(text, where)
+    if v < 0:
+        raise UserError(f"{where}: {text!r} is negative; a distance is the tape's reading (>= 0, e.g. '0.62 m')")
+    return v
+
+
 def parse_displacement(value: Any, where: str) -> tuple[float, float]:
     """'0.5, 0.2' / ['0.5 m', '20 cm'] -> (forward m, left m)."""
     if isinstance(value, str):
@@ -170,7 +178,7 @@ class ConsoleOperator:
     @staticmethod
     def _parse(step: Step, text: str) -> Any:
         if step.measure == "distance":
-            return parse_length(text, "answer")
+            return parse_distance(text, "answer")
         return parse_displacement(text, "answer")
 
     def remeasure(self, step: Step, question: str) -> Any | None:
@@ -229,7 +237,7 @@ class AnswersOperator:
         raw = self.data[step.measure][str(step.index)]
         where = f"{self.path}: [{step.measure}] {step.index}"
         if step.measure == "distance":
-            return parse_length(raw, where)
+            return parse_distance(raw, where)
         return parse_displacement(raw, where)
 
     def perform(self, action: Action, step: Step | None) -> str:

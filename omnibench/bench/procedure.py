@@ -258,8 +258,22 @@ def load_plan(path: str | Path, robot: Any, expect: str | None = None) -> Plan:
     if expect is not None and name != expect:
         pf.fail(None, "procedure", f"this file describes {name}, but the command runs {expect}")
     plan = EXPANDERS[name](pf, robot)
+    plan.settings["max_distance_m"] = _space(pf)
     check_limits(plan, robot, pf)
     return plan
+
+
+#: Default of `[space] max_distance`: the furthest a ground step may take the robot from where
+#: it started (m); a lab floor, not a corridor.
+DEFAULT_MAX_DISTANCE_M = 3.0
+
+
+def _space(pf: ProcedureFile) -> float:
+    """`[space] max_distance` (m): the lab's space for one ground step (default 3 m)."""
+    t = pf.table("space", required=False)
+    pf.check_keys("space", t, ["max_distance"])
+    return pf.quantity("space", t, "max_distance", "m", DEFAULT_MAX_DISTANCE_M, lo=0, lo_open=True,
+                       hi=100.0)
 
 
 # --------------------------------------------------------------------------- shared sections
@@ -291,7 +305,7 @@ def _no_slip(pf: ProcedureFile) -> dict[str, float]:
 
 
 def _top(pf: ProcedureFile, tables: list[str]) -> None:
-    pf.check_keys(None, pf.data, ["procedure", "description", "telemetry", "simulated_operator",
+    pf.check_keys(None, pf.data, ["procedure", "description", "telemetry", "simulated_operator", "space",
                                   *tables])
 
 
@@ -303,7 +317,7 @@ def _levels(pf: ProcedureFile, section: str, t: dict[str, Any], robot: Any) -> t
         vals = pf.quantity_list(section, t, "duties", "1", lo=0, lo_open=True)
         for v in vals:
             if v > robot.max_duty:
-                pf.fail(section, "duties", f"duty {v:g} exceeds the robot's max_duty {robot.max_duty:g}")
+                pf.fail(section, "duties", f"duty {v:.10g} exceeds the robot's max_duty {robot.max_duty:.10g}")
         return vals, "duties"
     vals = pf.quantity_list(section, t, "voltages", "V", lo=0, lo_open=True)
     vmax = robot.max_duty * robot.V_batt
@@ -612,16 +626,60 @@ def stall_current(robot: Any, duty: float) -> float:
     return abs(duty) * robot.V_batt / robot.R_a
 
 
+def duty_limit(robot: Any) -> float:
+    """Largest |duty| the robot file allows: its max_duty, and the duty whose stall current
+    (|u| V_batt / R_a) reaches max_current, whichever is lower."""
+    return min(float(robot.max_duty), robot.max_current * robot.R_a / robot.V_batt)
+
+
+def step_distance_bound(step: Step, robot: Any, dt: float = 0.01) -> float:
+    """Upper bound of how far a ground step takes the robot from where it started, m: the pose
+    integrated over the schedule at the body velocity of each entry's no-load wheel speeds
+    (u V_batt / k_e: friction only slows the robot), the largest distance from the start."""
+    from omnibench.model.geometry import inverse_kinematics
+
+    pinv = np.linalg.pinv(inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha))
+    x = y = psi = far = 0.0
+    for k, (t0, u) in enumerate(step.schedule):
+        t1 = min(step.schedule[k + 1][0] if k + 1 < len(step.schedule) else step.duration, step.duration)
+        v1, v2, w = pinv @ (np.asarray(u, dtype=float) * robot.V_batt / robot.k_e)
+        n = max(1, int(math.ceil(max(0.0, t1 - t0) / dt)))
+        h = max(0.0, t1 - t0) / n
+        if abs(w) < 1e-12:  # straight: one stretch
+            x += (math.cos(psi) * v1 - math.sin(psi) * v2) * h * n
+            y += (math.sin(psi) * v1 + math.cos(psi) * v2) * h * n
+            far = max(far, math.hypot(x, y))
+            continue
+        for _ in range(n):
+            mid = psi + 0.5 * w * h
+            x += (math.cos(mid) * v1 - math.sin(mid) * v2) * h
+            y += (math.sin(mid) * v1 + math.cos(mid) * v2) * h
+            psi += w * h
+            far = max(far, math.hypot(x, y))
+    return far
+
+
 def check_limits(plan: Plan, robot: Any, pf: ProcedureFile | None = None) -> None:
     """Refuse (UserError) any step whose duty exceeds max_duty or whose stall current exceeds
-    max_current, naming the file and the step."""
+    max_current, or a ground step that could drive further than `[space] max_distance`,
+    naming the file and the step."""
     where = plan.path
     for s in plan.steps:
         u = s.peak_duty
         if u > robot.max_duty + 1e-12:
-            raise UserError(f"{where}: step {s.index} ({s.label}) needs duty {u:.3f} "
-                            f"({u * robot.V_batt:.1f} V), above the robot's max_duty {robot.max_duty:g}")
+            raise UserError(f"{where}: step {s.index} ({s.label}) needs duty {u:.10g} "
+                            f"({u * robot.V_batt:.1f} V), above the robot's max_duty {robot.max_duty:.10g}")
         i = stall_current(robot, u)
         if i > robot.max_current + 1e-9:
             raise UserError(f"{where}: step {s.index} ({s.label}) could draw {i:.1f} A at stall, "
-                            f"above the robot's max_current {robot.max_current:g} A")
+                            f"above the robot's max_current {robot.max_current:g} A (the highest duty this "
+                            f"robot file allows is {duty_limit(robot):.3f})")
+    limit = plan.settings.get("max_distance_m")
+    for s in plan.steps:
+        if limit is None or s.world.mode != "ground" or not s.schedule:
+            continue
+        d = step_distance_bound(s, robot)
+        if d > limit + 1e-9:
+            raise UserError(f"{where}: step {s.index} ({s.label}) could take the robot {d:.3g} m from its start, "
+                            f"more than the lab's space ([space] max_distance {limit:g} m): shorten the run or "
+                            "lower its speed")

@@ -42,7 +42,7 @@ import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
 from omnibench.bench.procedure import Plan, Step, World
-from omnibench.errors import BoardError
+from omnibench.errors import BoardError, Terminated, UserError  # noqa: F401 - Terminated re-exported
 
 #: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
 QUESTION_FACTOR = 3.0
@@ -120,10 +120,6 @@ def angle_slope(t: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- runner
-class Terminated(KeyboardInterrupt):
-    """SIGTERM: handled like Ctrl-C (stop, mark aborted, keep the data)."""
-
-
 @dataclass
 class StepData:
     """Samples of the current step, kept in memory for the step's results."""
@@ -134,6 +130,10 @@ class StepData:
     V: list[float | None] = field(default_factory=list)
     I: list[float | None] = field(default_factory=list)
     rejected: int = 0  #: samples read during the step but not taken under its command
+    #: dead reckoning from the encoders (x m, y m, psi rad in the start frame), samples used, farthest m
+    pose: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    pose_n: int = 0
+    farthest: float = 0.0
 
     def arrays(self, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
         t = np.asarray(self.t, dtype=float)
@@ -164,6 +164,11 @@ class Runner:
         self.watchdog_s = float(plan.settings.get("watchdog_s", 0.5))
         self.telemetry_hz = float(plan.settings.get("telemetry_hz", 100.0))
         self._paused = False  # telemetry off while a person works (see _quiet)
+        #: the lab's space for one ground step, m ([space] max_distance), enforced from the encoders
+        self.max_distance = plan.settings.get("max_distance_m")
+        from omnibench.model.geometry import inverse_kinematics
+
+        self._pinv_R = np.linalg.pinv(inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha))
         #: keepalive period: 8 PINGs per watchdog timeout, so that on a cable losing 20 % of
         #: the host's frames the watchdog still fires only when the runner stops (0.2^8 ~ 3e-6)
         self.keep_every = self.watchdog_s / 8.0
@@ -298,8 +303,41 @@ class Runner:
                 self._host_limit(step, t0, s.t)
                 break
             s = nxt
+            self._check_space(step, data)
         self.progress(s.t - last_progress, step.label)
         return t0, s.t
+
+    def distance_from_start(self, data: StepData) -> float:
+        """How far the robot is from where the step started, m: its pose dead-reckoned from the
+        encoders (each sample's delta phi -> body motion pinv(R) . delta phi, turned into the
+        start frame). Also updates `data.farthest`."""
+        k = 2 * math.pi / self.cpr
+        x, y, psi = data.pose
+        for i in range(max(1, data.pose_n), len(data.enc)):
+            dphi = (np.asarray(data.enc[i], dtype=float) - np.asarray(data.enc[i - 1], dtype=float)) * k
+            dx, dy, dpsi = self._pinv_R @ dphi
+            mid = psi + 0.5 * dpsi
+            x += math.cos(mid) * dx - math.sin(mid) * dy
+            y += math.sin(mid) * dx + math.cos(mid) * dy
+            psi += dpsi
+        data.pose, data.pose_n = [x, y, psi], len(data.enc)
+        d = math.hypot(x, y)
+        data.farthest = max(data.farthest, d)
+        return d
+
+    def _check_space(self, step: Step, data: StepData) -> None:
+        """A ground step that takes the robot past `[space] max_distance` stops the motors and
+        ends the run (UserError): the dry run's bound assumed a sane board; the encoders tell."""
+        if self.max_distance is None or step.world.mode != "ground":
+            return
+        d = self.distance_from_start(data)
+        if d > self.max_distance:
+            self._stop()
+            self.writer.event("distance_limit", step=step.index, t=data.t[-1] if data.t else None,
+                              distance=d, limit=self.max_distance)
+            raise UserError(f"step {step.index} ({step.label}): the encoders say the robot is {d:.2f} m from "
+                            f"where the step started, past the lab's space ([space] max_distance "
+                            f"{self.max_distance:g} m); motors stopped")
 
     def _host_limit(self, step: Step, t0: float | None, t_end: float | None) -> tuple[float, float]:
         """The phase overran its time on the host's clock: stop the motors, say so."""

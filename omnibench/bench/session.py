@@ -17,7 +17,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from omnibench.bench.procedure import Plan, default_procedure_path, load_plan, stall_current
+from omnibench.bench.procedure import (
+    Plan,
+    default_procedure_path,
+    duty_limit,
+    load_plan,
+    stall_current,
+    step_distance_bound,
+)
 from omnibench.errors import UserError
 
 LABELS = {
@@ -63,7 +70,10 @@ def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
         "peak_voltage_V": peak_u * robot.V_batt,
         "peak_motor_current_A": stall_current(robot, peak_u),
         "peak_battery_current_A": peak_batt,
-        "limits": {"max_duty": robot.max_duty, "max_current_A": robot.max_current},
+        "limits": {"max_duty": robot.max_duty, "max_current_A": robot.max_current,
+                   "duty_limit": duty_limit(robot), "max_distance_m": plan.settings.get("max_distance_m")},
+        "max_step_distance_m": max((step_distance_bound(s, robot) for s in plan.steps
+                                    if s.world.mode == "ground" and s.schedule), default=0.0),
     }
 
 
@@ -80,8 +90,11 @@ def format_plan(plan: Plan, robot: Any) -> list[str]:
         lines.append(f"  {st.index:3d}  {st.label}: {bound}{st.max_time:.1f} s{extra}")
     lines.append(f"driving time: at most {s['max_driving_time_s']:.0f} s of board time "
                  f"(plus {s['operator_actions']} operator actions)")
+    if s["max_step_distance_m"] > 0:
+        lines.append(f"ground steps take the robot at most {s['max_step_distance_m']:.2f} m from their start (no-load speeds; "
+                     f"[space] max_distance {s['limits']['max_distance_m']:g} m, enforced from the encoders)")
     lines.append(f"peak voltage {s['peak_voltage_V']:.1f} V (duty {s['peak_duty']:.2f}, limit "
-                 f"{robot.max_duty:g}); peak motor current {s['peak_motor_current_A']:.1f} A at stall "
+                 f"{s['limits']['duty_limit']:.3g}); peak motor current {s['peak_motor_current_A']:.1f} A at stall "
                  f"(limit {robot.max_current:g} A); battery at most {s['peak_battery_current_A']:.1f} A")
     return lines
 
@@ -132,7 +145,8 @@ def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
 
 #: errors of the output file system: reported in one line naming the file, run left resumable
 DISK_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EIO}
-RESERVE_NAME = "run.json.reserve"
+#: bytes claimed (run.json.reserve) before the robot moves, so a full disk can still mark run.json
+RESERVE_BYTES = 256 * 1024
 
 
 @contextlib.contextmanager
@@ -150,17 +164,6 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
-
-
-def reserve_space(run_dir: Path, nbytes: int) -> Path:
-    """Claim `nbytes` on the run's file system before the robot moves (a file of zeros), so
-    that on a full disk run.json can still be marked (the reserve is freed first)."""
-    path = run_dir / RESERVE_NAME
-    with open(path, "wb") as fh:
-        fh.write(b"\0" * nbytes)
-        fh.flush()
-        os.fsync(fh.fileno())
-    return path
 
 
 def disk_error_line(exc: OSError, run_dir: Path) -> str:
@@ -204,18 +207,10 @@ def run_command(
     # 1. everything from files, before any port is touched
     if resume is not None:
         run_dir = Path(resume)
-        if not (run_dir / "run.json").is_file():
-            raise UserError(f"{run_dir}: not a run directory (no run.json) to resume")
-        try:
-            meta = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise UserError(f"{run_dir / 'run.json'}: unreadable ({type(exc).__name__}); cannot resume") from None
-        if not isinstance(meta, dict) or meta.get("format") != "omnibench-run":
-            raise UserError(f"{run_dir / 'run.json'}: not an omnibench run description; cannot resume")
-        if meta.get("procedure") != procedure:
-            raise UserError(f"{run_dir}: is a {meta.get('procedure')} run; resume it with its own command")
-        if meta.get("status") == "complete":
-            raise UserError(f"{run_dir}: run is already complete; nothing to resume")
+        from omnibench.runs.record import check_resumable
+
+        info, _ = check_resumable(run_dir, procedure)  # every file checked; nothing written yet
+        meta = info.raw
         robot, robot_text, robot_name = load_robot_file(run_dir / "robot.toml")
         robot_name = meta.get("robot_file") or robot_name
         plan = load_plan(run_dir / "procedure.toml", robot, expect=procedure)
@@ -292,22 +287,6 @@ def _prepare_kernel(echo: Callable[[str], None] | None) -> None:
         echo(f"physics kernel ready ({time.monotonic() - t0:.0f} s)")
 
 
-class RunLog:
-    """log.txt in the run folder: what the terminal said, with UTC times (also under -q)."""
-
-    def __init__(self, run_dir: str | Path) -> None:
-        self.path = Path(run_dir) / "log.txt"
-
-    def __call__(self, line: str) -> None:
-        import datetime as dt
-
-        try:
-            with open(self.path, "a", encoding="utf-8") as fh:
-                fh.write(f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%dT%H:%M:%S.%fZ} {line}\n")
-        except OSError:
-            pass
-
-
 def _wiring_record(board: Any) -> dict[str, Any] | None:
     """The wiring the run used (None: straight, no wiring file)."""
     from dataclasses import asdict
@@ -341,9 +320,13 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                   without_current: bool = False, plot: bool = False, verbosity: int = 0) -> dict[str, Any]:
     import click
 
-    from omnibench.bench.runner import Runner, safe_stop, sigterm_as_interrupt
+    from omnibench.bench.runner import Runner, Terminated, safe_stop, sigterm_as_interrupt
     from omnibench.runs import RunWriter
-    from omnibench.runs.store import _read_jsonl
+    from omnibench.runs.record import read_info, read_steps
+    from omnibench.runs.store import RunLog
+
+    def steps_done(path: Path) -> list[int]:
+        return [int(r["step"]) for r in read_steps(path, read_info(path))]
 
     hello = dict(getattr(board, "hello", {}) or {})
     cpr = hello.get("counts_per_rev") or robot.counts_per_rev
@@ -357,9 +340,11 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                             "to drive the trajectories anyway (no energy is measured)")
     operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     if resume is not None:
-        (Path(resume) / RESERVE_NAME).unlink(missing_ok=True)  # left by a killed run
-        writer = RunWriter.resume(Path(resume), board=hello)
-        done = {int(r["step"]) for r in _read_jsonl(Path(resume) / "steps.jsonl")}
+        try:
+            writer = RunWriter.resume(Path(resume), board=hello)  # validates every file first
+        except OSError as exc:
+            raise UserError(f"cannot resume {resume}: {disk_error_line(exc, Path(resume))}") from None
+        done = set(steps_done(writer.path))
         todo = [s for s in plan.steps if s.index not in done]
         echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
     else:
@@ -370,23 +355,25 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
                 port=port, counts_per_rev=cpr,
                 extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
                        "settings": plan.settings, "wiring": _wiring_record(board)},
+                reserve=RESERVE_BYTES,  # room to mark the run on a full disk, claimed before the robot moves
             )
         except OSError as exc:
-            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}") from None
+            need = (f" (a run claims {RESERVE_BYTES // 1024} KiB before the robot moves, to mark run.json on a "
+                    "full disk)") if str(exc.filename or "").endswith(".reserve") else ""
+            raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}{need}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
     status, reason = "failed", "unknown"
     disk_full = False
-    reserve: Path | None = None
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
     lock.__enter__()
-    log = RunLog(writer.path)
+    log = RunLog(writer.path)  # log.txt: what the terminal said
     log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
     restore: Callable[[], Any] = lambda: None
     try:
         restore = sigterm_as_interrupt()
-        meta_size = len(json.dumps(writer.metadata, default=str))
-        reserve = reserve_space(writer.path, max(256 * 1024, 8 * meta_size))  # before the robot moves
+        if resume is not None:  # a new run claimed its reserve as it was created
+            writer.reserve(max(RESERVE_BYTES, 8 * len(json.dumps(writer.metadata, default=str))))
         writer.update(operator=operator.source)
         total = sum(s.max_time for s in todo)
         view = None
@@ -412,6 +399,9 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             if view is not None:
                 view.close()
         status, reason = "complete", None
+    except Terminated:
+        status, reason = "aborted", "terminated (SIGTERM)"
+        raise
     except KeyboardInterrupt:
         status, reason = "aborted", "interrupted by the operator (Ctrl-C)"
         raise
@@ -432,8 +422,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
         raise
     finally:
         stopped = safe_stop(board)
-        if reserve is not None:
-            reserve.unlink(missing_ok=True)  # frees the space run.json needs, even on a full disk
+        writer.release_reserve()  # frees the space run.json needs, even on a full disk
         try:
             writer.event("motors_stopped", confirmed=stopped)
             if getattr(board, "link_stats", None) is not None:

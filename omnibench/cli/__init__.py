@@ -14,7 +14,7 @@ import sys
 import click
 
 from omnibench import __version__
-from omnibench.errors import UserError
+from omnibench.errors import Terminated, UserError
 
 # command name -> (module, one-line help shown in `omnibench --help`)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -87,7 +87,10 @@ def main(argv: list[str] | None = None) -> None:
     debug = bool(os.environ.get("OMNIBENCH_DEBUG"))
     try:
         cli.main(args=argv, prog_name="omnibench", standalone_mode=False)
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, Terminated):  # click turns KeyboardInterrupt into Abort
+            click.echo("omnibench: terminated (SIGTERM)", err=True)
+            sys.exit(143)
         click.echo("omnibench: aborted", err=True)
         sys.exit(130)
     except click.ClickException as exc:  # usage errors too: one line, not click's three
@@ -102,6 +105,9 @@ def main(argv: list[str] | None = None) -> None:
             raise
         click.echo(f"omnibench: error: {exc}", err=True)
         sys.exit(exc.exit_code)
+    except Terminated:
+        click.echo("omnibench: terminated (SIGTERM)", err=True)
+        sys.exit(143)
     except KeyboardInterrupt:
         click.echo("omnibench: interrupted", err=True)
         sys.exit(130)

@@ -40,7 +40,8 @@ def info(port: str, timeout: float | None, as_json: bool) -> None:
         rtt = [board.ping() for _ in range(5)] if board.version_ok else []
         out = dict(hello.as_dict(), port=port, protocol=board.spec.name,
                    host_protocol_version=board.spec.version, compatible=board.version_ok,
-                   ping_ms=round(1e3 * sorted(rtt)[len(rtt) // 2], 3) if rtt else None)
+                   ping_ms=round(1e3 * sorted(rtt)[len(rtt) // 2], 3) if rtt else None,
+                   faults=_latched_faults(board) if board.version_ok else None)
     if as_json:
         click.echo(json.dumps(out, indent=1))
     else:
@@ -48,6 +49,20 @@ def info(port: str, timeout: float | None, as_json: bool) -> None:
     if not out["compatible"]:
         raise BoardError(f"board on {port} speaks protocol v{out['protocol_version']}, this tool "
                          f"v{out['host_protocol_version']}: update the firmware or omnibench")
+
+
+def _latched_faults(board) -> list[str] | None:
+    """Names of the faults latched on the board now, read from one telemetry sample (the motors
+    stay stopped; nothing is cleared: a run asks the operator before it clears them)."""
+    try:
+        board.configure(telemetry_hz=min(50, int(board.hello.max_telemetry_rate or 50)))
+        try:
+            sample = next(iter(board.samples(0.0)), None)
+        finally:
+            board.configure(telemetry_hz=0)
+    except BoardError:  # no telemetry: the identity is still worth printing
+        return None
+    return board.fault_names(sample.faults) if sample is not None else None
 
 
 def _print_info(out: dict, port: str) -> None:
@@ -59,6 +74,11 @@ def _print_info(out: dict, port: str) -> None:
     click.echo(f"  capabilities: {', '.join(out['capabilities']) or 'none'}")
     if out["ping_ms"] is not None:
         click.echo(f"  command round trip: {out['ping_ms']:.2f} ms (median of 5)")
+    if out["compatible"]:
+        faults = out.get("faults")
+        click.echo("  faults latched: " + ("unknown (no telemetry sample)" if faults is None else
+                                           ", ".join(faults) + " (the next run asks before clearing them)"
+                                           if faults else "none"))
 
 
 @command.command(name="monitor")

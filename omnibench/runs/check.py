@@ -4,66 +4,42 @@ them by name with --skip-bad), never read the same run twice, and never write ov
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-import numpy as np
-
 from omnibench.errors import UserError
-from omnibench.runs.store import SAMPLE_COLUMNS
-
-#: Columns every sample must hold a number in (motor and battery currents may be unlogged).
-MEASURED = ("segment", "step", "t", "u1", "u2", "u3", "u4", "phi1", "phi2", "phi3", "phi4")
+from omnibench.runs.record import read_info, refuse_duplicate_ids, sample_header
 
 
 def run_problem(path: Path) -> str | None:
-    """Why run directory `path` cannot be analysed (None: it can)."""
+    """Why run directory `path` cannot be analysed (None: it can). Every file is validated by
+    the one reader (omnibench.runs.record): the reason names the file, the line and the field."""
     from omnibench.runs import read_run
+    from omnibench.runs.record import duties_disagree, missing_for_analysis, unmeasured
 
-    try:
-        meta = json.loads((path / "run.json").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        return f"run.json unreadable ({type(exc).__name__})"
-    if not isinstance(meta, dict):
-        return "run.json is not a run description"
-    if meta.get("format") != "omnibench-run":
-        return f"run.json is not an omnibench run (format {meta.get('format')!r})"
-    if meta.get("status") != "complete":
-        return f"run is {meta.get('status')!r}, not complete (resume it, or leave it out)"
-    if not (path / "samples.csv").is_file():
-        return "samples.csv is missing"
-    header = _first_line(path / "samples.csv").split(",")
-    lacking = [c for c in SAMPLE_COLUMNS if c not in header]
-    if lacking:
-        return f"samples.csv lacks column(s) {', '.join(lacking)}"
-    steps = path / "steps.jsonl"
-    seen: set[object] = set()
-    if steps.is_file():
-        for n, line in enumerate(steps.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
-            try:
-                rec = json.loads(line) if line.strip() else {}
-            except json.JSONDecodeError:
-                return f"steps.jsonl line {n} is not JSON"
-            if line.strip() and not (isinstance(rec, dict) and "step" in rec):
-                return f"steps.jsonl line {n} is not a step record"
-            if line.strip():
-                if rec["step"] in seen:
-                    return f"steps.jsonl line {n} records step {rec['step']} a second time"
-                seen.add(rec["step"])
     try:
         run = read_run(path)
     except UserError as exc:
         return str(exc)
-    except Exception as exc:  # noqa: BLE001 - any unreadable file makes the run corrupt
-        return f"unreadable ({type(exc).__name__})"
-    for c in MEASURED:
-        bad = run.samples[c].isna() | ~np.isfinite(run.samples[c].to_numpy(dtype=float))
-        if bad.any():
-            return f"samples.csv: column {c} holds a non-number (data line {int(np.argmax(bad.to_numpy())) + 1})"
-    planned = meta.get("steps_planned")
-    if isinstance(planned, int) and len(run.steps) < planned:
+    info = run.info or read_info(path)
+    if info.status != "complete":
+        return f"run is {info.status!r}, not complete (resume it, or leave it out)"
+    if not (path / "samples.csv").is_file():
+        return "samples.csv is missing"
+    if sample_header(path / "samples.csv") is None:
+        return f"{path / 'samples.csv'}:1: no complete header line"
+    why = missing_for_analysis(path, info)
+    if why:
+        return why
+    why = unmeasured(path, run.samples)
+    if why:
+        return why
+    why = duties_disagree(path, run.steps.to_dict("records"), run.samples)
+    if why:
+        return why
+    planned = info.steps_planned
+    if planned is not None and len(run.steps) < planned:
         return f"{len(run.steps)} of {planned} steps recorded"
     for _, st in run.steps.iterrows():
         t_end = st.get("t_end")
@@ -72,11 +48,6 @@ def run_problem(path: Path) -> str | None:
             if not len(s) or float(s["t"].max()) < t_end - 1e-6:
                 return f"samples.csv is cut: step {int(st['step'])} has no samples up to its end"
     return None
-
-
-def _first_line(path: Path) -> str:
-    with open(path, "rb") as f:
-        return f.readline(4096).decode("utf-8", errors="replace").strip()
 
 
 def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
@@ -108,9 +79,11 @@ def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
         elif skip_bad:
             (echo or print)(f"skipping {d}: {why}")
         else:
-            raise UserError(f"{d}: {why} (--skip-bad leaves such runs out)")
+            where = "" if why.startswith(str(d)) else f"{d}: "
+            raise UserError(f"{where}{why} (--skip-bad leaves such runs out)")
     if not good:
         raise UserError("no usable run left after skipping the bad ones")
+    refuse_duplicate_ids([read_info(d) for d in good])
     return good
 
 

@@ -18,14 +18,15 @@ files, and the step records say which segment completed each step.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
-import io
 import json
 import math
 import os
+import shutil
 import time
 import uuid
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,28 +34,25 @@ from typing import Any
 import pandas as pd
 
 from omnibench import __version__
-from omnibench.errors import UserError
+from omnibench.errors import Terminated, UserError
 
-FORMAT = "omnibench-run"
-FORMAT_VERSION = 1
-
-#: Columns of samples.csv, in order. Units: t s, u duty [-1, 1], enc counts, phi rad,
-#: i A (motor current, may be empty), V_batt V, I_batt A (may be empty), faults int bitmask.
-SAMPLE_COLUMNS: tuple[str, ...] = (
-    "segment",
-    "step",
-    "t",
-    "seq",
-    "u1", "u2", "u3", "u4",
-    "enc1", "enc2", "enc3", "enc4",
-    "phi1", "phi2", "phi3", "phi4",
-    "i1", "i2", "i3", "i4",
-    "V_batt",
-    "I_batt",
-    "faults",
+from omnibench.runs.record import (  # noqa: F401 - the format's names, re-exported
+    FORMAT,
+    FORMAT_VERSION,
+    SAMPLE_COLUMNS,
+    STATUSES,
+    RunInfo,
+    check_resumable,
+    complete_lines,
+    read_info,
+    read_jsonl,
+    read_samples,
+    read_steps,
+    safe_name,
 )
 
-STATUSES = ("running", "complete", "aborted", "failed")
+#: The space reserve: a file of zeros claimed before the robot moves, freed before run.json is marked.
+RESERVE_NAME = "run.json.reserve"
 
 #: The samples file is flushed to the OS at least this often (host seconds).
 FLUSH_INTERVAL_S = 0.5
@@ -131,13 +129,15 @@ def new_run_dir(out: Path, procedure: str) -> Path:
     """A fresh directory ``out/<procedure>-<UTC date-time>[-n]`` (created; an imported run
     passes its source file's name instead of the procedure)."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with named(out):
+        out.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
     base = out / f"{procedure}-{stamp}"
     path, n = base, 1
     while True:
         try:
-            path.mkdir()
+            with named(path):
+                path.mkdir()
             return path
         except FileExistsError:
             n += 1
@@ -147,7 +147,7 @@ def new_run_dir(out: Path, procedure: str) -> Path:
 def unique_run_id(path: Path) -> str:
     """The run's id: its directory name plus 8 random hex digits, so two runs started in the
     same second in two folders never share an id (the analysis merges runs by id)."""
-    return f"{Path(path).name}-{uuid.uuid4().hex[:8]}"
+    return f"{safe_name(Path(path).name)[:180]}-{uuid.uuid4().hex[:8]}"
 
 
 class RunWriter:
@@ -162,17 +162,27 @@ class RunWriter:
         self.metadata = metadata
         self.segment = segment
         self.counts_per_rev: float | None = metadata.get("counts_per_rev")
-        new_samples = not (self.path / "samples.csv").exists()
-        self._samples = open(self.path / "samples.csv", "a", encoding="utf-8", newline="")
-        if new_samples:
-            self._samples.write(",".join(SAMPLE_COLUMNS) + "\n")
-        self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
-        self._steps = open(self.path / "steps.jsonl", "a", encoding="utf-8")
-        self._last_flush = time.monotonic()
-        self._finished = False
-        self.n_samples = 0
-        self.save_metadata()
-        self.flush()
+        sp = self.path / "samples.csv"
+        self._samples = self._events = self._steps = None  # type: ignore[assignment]
+        self._reserve: Path | None = None
+        try:
+            with named(sp):
+                new_samples = not sp.exists() or sp.stat().st_size == 0  # none yet, or cut in the header
+                self._samples = open(sp, "a", encoding="utf-8", newline="")
+                if new_samples:
+                    self._samples.write(",".join(SAMPLE_COLUMNS) + "\n")
+            with named(self.path / "events.jsonl"):
+                self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
+            with named(self.path / "steps.jsonl"):
+                self._steps = open(self.path / "steps.jsonl", "a", encoding="utf-8")
+            self._last_flush = time.monotonic()
+            self._finished = False
+            self.n_samples = 0
+            self.save_metadata()
+            self.flush()
+        except BaseException:
+            self._close_files()
+            raise
 
     # -- creation -------------------------------------------------------------------------
     @classmethod
@@ -192,20 +202,52 @@ class RunWriter:
         counts_per_rev: float | None = None,
         extra: Mapping[str, Any] | None = None,
         name: str | None = None,
+        reserve: int | None = None,
     ) -> "RunWriter":
         """Start a new run directory (status ``running``) under `out` (or exactly `run_dir`),
-        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure)."""
+        named ``<name>-<UTC date-time>`` (`name` defaults to the procedure). `reserve`: claim
+        that many bytes (at least 8x run.json) for the final run.json before returning (see
+        `reserve`). Any failure (e.g. a full disk) removes the half-made folder and raises."""
+        made_out = not Path(out).exists()
         if run_dir is None:
             path = new_run_dir(Path(out), name or procedure)
         else:
             path = Path(run_dir)
-            path.mkdir(parents=True, exist_ok=True)
+            with named(path):
+                path.mkdir(parents=True, exist_ok=True)
             if any(path.iterdir()):
                 raise UserError(f"{path}: run directory is not empty")
+        try:
+            w = cls._start(path, procedure, procedure_text=procedure_text, procedure_file=procedure_file,
+                           robot=robot, robot_text=robot_text, robot_file=robot_file, board=board, port=port,
+                           counts_per_rev=counts_per_rev, extra=extra)
+            if reserve:
+                try:
+                    w.reserve(max(reserve, 8 * len(dumps(w.metadata))))
+                except BaseException:
+                    w._close_files()
+                    raise
+            return w
+        except BaseException:
+            shutil.rmtree(path, ignore_errors=True)  # no half-made run folder (e.g. the disk is full)
+            if made_out and run_dir is None:
+                try:
+                    Path(out).rmdir()  # nor the --out folder made for it, when nothing else is there
+                except OSError:
+                    pass
+            raise
+
+    @classmethod
+    def _start(cls, path: Path, procedure: str, *, procedure_text: str | None, procedure_file: str | None,
+               robot: Mapping[str, Any] | None, robot_text: str | None, robot_file: str | None,
+               board: Mapping[str, Any] | None, port: str | None, counts_per_rev: float | None,
+               extra: Mapping[str, Any] | None) -> "RunWriter":
         if procedure_text is not None:
-            (path / "procedure.toml").write_text(procedure_text, encoding="utf-8")
+            with named(path / "procedure.toml"):
+                (path / "procedure.toml").write_text(procedure_text, encoding="utf-8")
         if robot_text is not None:
-            (path / "robot.toml").write_text(robot_text, encoding="utf-8")
+            with named(path / "robot.toml"):
+                (path / "robot.toml").write_text(robot_text, encoding="utf-8")
         meta: dict[str, Any] = {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -237,12 +279,9 @@ class RunWriter:
     def resume(cls, path: Path, *, board: Mapping[str, Any] | None = None) -> "RunWriter":
         """Reopen an interrupted run to append a new segment (status back to ``running``)."""
         path = Path(path)
-        meta_path = path / "run.json"
-        if not meta_path.is_file():
-            raise UserError(f"{path}: not a run directory (no run.json)")
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if meta.get("status") == "complete":
-            raise UserError(f"{path}: run is already complete; nothing to resume")
+        info, _ = check_resumable(path)  # every file validated before anything is written
+        meta = info.raw
+        _unlink_quietly(path / RESERVE_NAME)  # left by a killed run
         _trim_partial_line(path / "samples.csv")
         _trim_partial_line(path / "events.jsonl")
         _trim_partial_line(path / "steps.jsonl")
@@ -283,7 +322,8 @@ class RunWriter:
             for j in range(1, 5):
                 if r.get(f"phi{j}") is None and r.get(f"enc{j}") is not None:
                     r[f"phi{j}"] = float(r[f"enc{j}"]) * k
-        self._samples.write(",".join(_fmt(r.get(c)) for c in SAMPLE_COLUMNS) + "\n")
+        with named(self.path / "samples.csv"):
+            self._samples.write(",".join(_fmt(r.get(c)) for c in SAMPLE_COLUMNS) + "\n")
         self.n_samples += 1
         self._maybe_flush()
 
@@ -297,8 +337,9 @@ class RunWriter:
         """Append one event (flushed at once): kind, host time, board time `t` (s), step."""
         rec = {"kind": kind, "host_time": utc_now(), "t": t, "step": step,
                "segment": self.segment, **fields}
-        self._events.write(dumps(rec) + "\n")
-        self._events.flush()
+        with named(self.path / "events.jsonl"):
+            self._events.write(dumps(rec) + "\n")
+            self._events.flush()
         self._maybe_flush(force=True)
 
     def operator_answer(self, step: int | None, action: str, prompt: str, answer: Any,
@@ -317,17 +358,56 @@ class RunWriter:
         if "step" not in rec:
             raise ValueError("step record needs a 'step' index")
         self.flush()
-        self._steps.write(dumps(rec) + "\n")
-        self._steps.flush()
-        os.fsync(self._steps.fileno())
+        with named(self.path / "steps.jsonl"):
+            self._steps.write(dumps(rec) + "\n")
+            self._steps.flush()
+            os.fsync(self._steps.fileno())
         self.metadata["steps_complete"] = int(self.metadata.get("steps_complete", 0)) + 1
         self.save_metadata()
 
     def flush(self) -> None:
         """Push buffered samples and events to the OS."""
-        self._samples.flush()
-        self._events.flush()
+        with named(self.path / "samples.csv"):
+            self._samples.flush()
+        with named(self.path / "events.jsonl"):
+            self._events.flush()
         self._last_flush = time.monotonic()
+
+    # -- space reserve --------------------------------------------------------------------
+    def reserve(self, nbytes: int) -> None:
+        """Claim `nbytes` on the run's file system (RESERVE_NAME, zeros) before the robot moves,
+        so that on a full disk run.json can still be marked: `finish` frees it first. A reserve
+        that does not fit is removed again and the OSError names it."""
+        path = self.path / RESERVE_NAME
+        try:
+            with named(path), open(path, "wb") as fh:
+                fh.write(b"\0" * nbytes)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except BaseException:
+            _unlink_quietly(path)
+            raise
+        self._reserve = path
+
+    def release_reserve(self) -> None:
+        """Free the space reserve (if any)."""
+        if self._reserve is not None:
+            _unlink_quietly(self._reserve)
+            self._reserve = None
+
+    def _close_files(self) -> None:
+        for fh in (self._samples, self._events, self._steps):
+            if fh is None:
+                continue
+            try:
+                fh.flush()
+                os.fsync(fh.fileno())
+            except (OSError, ValueError):
+                pass
+            try:
+                fh.close()
+            except (OSError, ValueError):
+                pass
 
     def _maybe_flush(self, force: bool = False) -> None:
         if force or time.monotonic() - self._last_flush >= FLUSH_INTERVAL_S:
@@ -340,16 +420,11 @@ class RunWriter:
         if self._finished:
             return
         self._finished = True
+        self.release_reserve()  # the space run.json needs, even on a full disk
         try:
             self.event("run_end", status=status, reason=reason)
         finally:
-            for fh in (self._samples, self._events, self._steps):
-                try:
-                    fh.flush()
-                    os.fsync(fh.fileno())
-                    fh.close()
-                except (OSError, ValueError):
-                    pass
+            self._close_files()
             now = utc_now()
             self.metadata["status"] = status
             self.metadata["reason"] = reason
@@ -369,10 +444,56 @@ class RunWriter:
             return
         if exc_type is None:
             self.finish("complete")
+        elif issubclass(exc_type, Terminated):
+            self.finish("aborted", "terminated (SIGTERM)")
         elif issubclass(exc_type, KeyboardInterrupt):
             self.finish("aborted", "interrupted by the operator (Ctrl-C)")
         else:
             self.finish("failed", f"{exc_type.__name__}: {exc}".splitlines()[0])
+
+
+def append_event(run_dir: Path | str, kind: str, **fields: Any) -> None:
+    """Add one event to a finished run's events.jsonl (same line format as the writer's; board
+    time and step null), e.g. a design decision taken after the run."""
+    path = Path(run_dir) / "events.jsonl"
+    _trim_partial_line(path)
+    with named(path), open(path, "a", encoding="utf-8") as fh:
+        fh.write(dumps({"kind": kind, "host_time": utc_now(), "t": None, "step": None, **fields}) + "\n")
+
+
+class RunLog:
+    """log.txt in the run folder: what the terminal said, with UTC times (also under -q). A
+    line that cannot be written (a full disk) is dropped: the log is a convenience, the run's
+    record is run.json, samples.csv, events.jsonl and steps.jsonl."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / "log.txt"
+
+    def __call__(self, line: str) -> None:
+        try:
+            with open(self.path, "a", encoding="utf-8") as fh:
+                fh.write(f"{utc_now()} {line}\n")
+        except OSError:
+            pass
+
+
+@contextlib.contextmanager
+def named(path: Path) -> Iterator[None]:
+    """Give an OSError raised inside the block the file name `path` when it has none (a write
+    that fails on a full disk names no file), so the one-line message says which file failed."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise
+
+
+def _unlink_quietly(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 def _trim_partial_line(path: Path) -> None:
@@ -382,30 +503,13 @@ def _trim_partial_line(path: Path) -> None:
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
         cut = data.rfind(b"\n") + 1
-        with open(path, "r+b") as fh:
+        with named(path), open(path, "r+b") as fh:
             fh.truncate(cut)
 
 
-def _read_complete_lines(path: Path) -> str:
-    """File text without a half-written last line."""
-    if not path.exists():
-        return ""
-    text = path.read_text(encoding="utf-8")
-    if text and not text.endswith("\n"):
-        text = text[: text.rfind("\n") + 1]
-    return text
-
-
 def _read_jsonl(path: Path) -> list[dict[str, Any]]:
-    out = []
-    for n, line in enumerate(_read_complete_lines(path).splitlines(), start=1):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError as exc:
-            raise UserError(f"{path}:{n}: not a JSON line ({exc.msg})") from None
-    return out
+    """The objects of a JSON-lines file (RunFileError naming the line of a bad one)."""
+    return [rec for _, rec in read_jsonl(path)]
 
 
 @dataclass
@@ -421,7 +525,13 @@ class Run:
     samples: pd.DataFrame
     events: pd.DataFrame
     steps: pd.DataFrame
+    info: RunInfo | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def run_id(self) -> str:
+        """The run's (validated, file-name safe) id."""
+        return self.info.run_id if self.info is not None else str(self.metadata.get("run_id") or self.path.name)
 
     @property
     def status(self) -> str:
@@ -450,38 +560,19 @@ class Run:
 
 
 def read_run(path: Path | str) -> Run:
-    """Read a run directory (complete or not) into a `Run`.
+    """Read and validate a run directory (complete or not) into a `Run`.
 
-    Tolerates a half-written last line in any file (a crash mid-write).
+    Tolerates a half-written last line in any file (a crash mid-write); any other fault is a
+    RunFileError (a UserError) naming the file, the line and the field (omnibench.runs.record).
     """
     path = Path(path)
-    meta_path = path / "run.json"
-    if not meta_path.is_file():
-        raise UserError(f"{path}: not a run directory (no run.json)")
-    try:
-        metadata = json.loads(meta_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{meta_path}:{exc.lineno}: broken JSON ({exc.msg})") from None
-    text = _read_complete_lines(path / "samples.csv")
-    if text.strip():
-        samples = pd.read_csv(io.StringIO(text))
-    else:
-        samples = pd.DataFrame(columns=list(SAMPLE_COLUMNS))
-    for c in SAMPLE_COLUMNS:
-        if c not in samples.columns:
-            samples[c] = float("nan")
-    for c in SAMPLE_COLUMNS:
-        samples[c] = pd.to_numeric(samples[c], errors="coerce")
+    info = read_info(path)
+    samples = read_samples(path / "samples.csv")
     events = pd.DataFrame(_read_jsonl(path / "events.jsonl"))
-    steps_records = _read_jsonl(path / "steps.jsonl")
-    # A resumed step is recorded once; if a record repeats (should not), the last one wins.
-    by_step: dict[int, dict[str, Any]] = {}
-    for rec in steps_records:
-        by_step[int(rec["step"])] = rec
-    steps = pd.DataFrame([by_step[k] for k in sorted(by_step)])
+    steps = pd.DataFrame(read_steps(path, info))
     if not len(steps):
         steps = pd.DataFrame(columns=["step", "segment"])
-    return Run(path=path, metadata=metadata, samples=samples, events=events, steps=steps)
+    return Run(path=path, metadata=info.raw, samples=samples, events=events, steps=steps, info=info)
 
 
 def find_runs(root: Path | str, procedure: str | Sequence[str] | None = None) -> list[Path]:
@@ -495,9 +586,9 @@ def find_runs(root: Path | str, procedure: str | Sequence[str] | None = None) ->
         if procs:
             try:
                 meta = json.loads((d / "run.json").read_text(encoding="utf-8"))
-            except (OSError, json.JSONDecodeError):
+            except (OSError, ValueError):
                 continue
-            if meta.get("procedure") not in procs:
+            if not isinstance(meta, dict) or meta.get("procedure") not in procs:
                 continue
         found.append(d)
     return found

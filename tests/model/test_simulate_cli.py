@@ -47,7 +47,7 @@ def test_simulate_on_the_ground_with_payload_and_robot_file(tmp_path):
 @pytest.mark.parametrize(
     "content, expect",
     [
-        ("t,u1,u2,u3,u4\n0,0.5,0.5,0.5,2.0\n", "cmds.csv:2: duty out of range [-1.0, 1.0]: u4=2.0"),
+        ("t,u1,u2,u3,u4\n0,0.5,0.5,0.5,2.0\n", "cmds.csv:2: duty out of range [-0.97, 0.97]: u4=2.0"),
         ("t,u1,u2,u3\n0,0.5,0.5,0.5\n", "cmds.csv:1: header must name t,u1,u2,u3,u4; missing u4"),
         ("t,u1,u2,u3,u4\n0,0.5,0.5,0.5,0.5\n1,a,b,c,d\n", "cmds.csv:3: expected 5 numbers"),
         ("t,u1,u2,u3,u4\n1,0,0,0,0\n0.5,0,0,0,0\n", "cmds.csv:3: time 0.5 s must be >= 0 and not before the previous row"),

@@ -103,3 +103,21 @@ def test_latched_fault_is_shown_cleared_with_consent_and_logged(capsys, tmp_path
         assert len(answers) == 1 and "WATCHDOG" in answers[0]["prompt"]
     finally:
         srv.stop()
+
+
+def test_board_info_shows_latched_faults_and_leaves_them_latched(capsys, tmp_path) -> None:
+    srv = spawn_server(tmp_path, "--clock", "fast", "--seed", "9")
+    try:
+        rc, out, err = omnibench(capsys, "board", "info", "--port", srv.path)
+        assert rc == 0 and "faults latched: none" in out, err
+        with Board.open(srv.path) as b:  # a session that hung: the watchdog fired
+            b.configure(watchdog_s=0.05)
+            b.set_duties([0.2] * 4)
+            time.sleep(0.4)
+        rc, out, err = omnibench(capsys, "board", "info", "--port", srv.path)
+        assert rc == 0 and "faults latched: WATCHDOG" in out, err
+        rc, out, err = omnibench(capsys, "board", "info", "--port", srv.path, "--json")
+        assert json.loads(out)["faults"] == ["WATCHDOG"]
+        assert srv.status()["faults"] == ["WATCHDOG"]  # shown, not cleared
+    finally:
+        srv.stop()

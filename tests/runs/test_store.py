@@ -123,12 +123,13 @@ def test_not_a_run(tmp_path):
         read_run(tmp_path)
 
 
-def test_run_ids_unique_and_analysis_keeps_same_id_runs_apart(tmp_path):
+def test_run_ids_unique_and_a_copied_run_is_refused_not_counted_twice(tmp_path):
     """Two runs started in the same second in two folders differ in id; two run folders that
-    share an id (copies, older runs) still stay two runs in the analysis."""
+    share an id (a copy) are refused with a line naming both, never counted twice (issue 38)."""
     import shutil
 
     from omnibench.analysis.observations import Observations
+    from omnibench.runs.check import checked_runs
 
     paths = []
     for folder in ("a", "b"):
@@ -141,9 +142,32 @@ def test_run_ids_unique_and_analysis_keeps_same_id_runs_apart(tmp_path):
         paths.append(w.path)
     ids = [read_run(p).metadata["run_id"] for p in paths]
     assert ids[0] != ids[1] and all(i.startswith("step_response-20261123-061635-") for i in ids)
-    # a copy keeps the id of its original: still two runs, each with its own samples
+    obs = Observations.from_runs(paths)
+    assert sorted(obs.run_ids) == sorted(ids)
     shutil.copytree(paths[0], tmp_path / "c" / paths[0].name)
-    obs = Observations.from_runs([paths[1], tmp_path / "c", paths[0]])
-    assert len(obs.run_ids) == 3 and len(set(obs.run_ids)) == 3
-    signs = sorted(np.sign(tr["phi1"].iloc[-1]) for tr in obs.traces.values())
-    assert signs == [-1, 1, 1]
+    for reader in (Observations.from_runs, checked_runs):
+        with pytest.raises(UserError, match=f"run_id {ids[0]} is also the id of") as exc:
+            reader([paths[1], tmp_path / "c", paths[0]])
+        assert "\n" not in str(exc.value)
+
+
+def test_run_id_from_an_unsafe_folder_name_is_made_safe(tmp_path):
+    w = RunWriter.create(tmp_path, "x", run_dir=tmp_path / "my run: 1 ..")
+    w.finish("complete")
+    rid = read_run(w.path).run_id
+    assert "/" not in rid and " " not in rid and ".." not in rid and rid.startswith("my_run__1_")
+
+
+def test_a_sample_under_no_steps_command_does_not_make_the_run_unusable(tmp_path):
+    """The runner writes telemetry that queued before a step's ACK with an empty step (counted in
+    the step's samples_rejected): fit must not refuse the run for it."""
+    from omnibench.runs.check import run_problem
+
+    w = RunWriter.create(tmp_path, "step_response", counts_per_rev=980, extra={"steps_planned": 1})
+    w.sample({**_row(0, 0), "step": None})
+    for k in range(1, 6):
+        w.sample(_row(0, k))
+    w.step_complete({"step": 0, "duty": 0.5, "t_start": 0.01, "t_end": 0.05, "samples_rejected": 1})
+    w.finish("complete")
+    assert run_problem(w.path) is None
+    assert len(read_run(w.path).step_samples(0)) == 5
