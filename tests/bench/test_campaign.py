@@ -26,7 +26,9 @@ def test_campaign_on_sim_writes_report(capsys, tmp_path):
     captured = capsys.readouterr()
     res = json.loads(captured.out)
     # the terminal summary: fitted values with SE, the energy error, both reports
-    assert "== summary" in captured.err and "fitted (value ± SE, verdict):" in captured.err
+    assert "== summary" in captured.err and "the model (declared fit; value ± SE, 95 % interval, verdict):" in captured.err
+    report_head = (out / "report.md").read_text().split("## The campaign")[0]
+    assert "## The answer" in report_head and "| R_a |" in report_head  # the report opens with the answer
     assert "energy: predicted vs measured, mean |error|" in captured.err and "report.html" in captured.err
     assert set(res["procedures"]) == {"upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories"}
     for p in res["procedures"].values():
