@@ -87,8 +87,10 @@ def main(argv: list[str] | None = None) -> None:
     debug = bool(os.environ.get("OMNIBENCH_DEBUG"))
     try:
         cli.main(args=argv, prog_name="omnibench", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("omnibench: aborted", err=True)
+    except click.exceptions.Abort as exc:
+        # click turns Ctrl-C (KeyboardInterrupt) into Abort; a declined prompt or ended input is Abort too
+        interrupted = isinstance(exc.__cause__, KeyboardInterrupt) or isinstance(exc.__context__, KeyboardInterrupt)
+        click.echo(f"omnibench: {'interrupted (Ctrl-C)' if interrupted else 'aborted'}", err=True)
         sys.exit(130)
     except click.ClickException as exc:  # usage errors too: one line, not click's three
         where = exc.ctx.command_path if isinstance(exc, click.UsageError) and exc.ctx else ""

@@ -87,7 +87,9 @@ def working(label: str) -> Iterator[StageStatus]:
         return
     from rich.console import Console
 
-    console = Console(stderr=True)
+    # the terminal itself, fixed now: Console(stderr=True) would look sys.stderr up at each write,
+    # and under a stage that is the TeeStream feeding this very spinner (its frames fed back in)
+    console = Console(file=sys.stderr)
     _active += 1
     try:
         with console.status(status):

@@ -73,3 +73,34 @@ def test_tee_passes_lines_on_and_keeps_them() -> None:
     quiet = TeeStream(None)
     quiet.write("kept\n")
     assert quiet.getvalue() == "kept\n" and not quiet.isatty()
+
+
+@pytest.mark.slow
+def test_stage_progress_reaches_the_terminal_and_ctrl_c_there_stops_the_campaign(tmp_path) -> None:
+    """A person at a terminal (a pseudo-terminal here) sees the fit's spinner and diagnose's own
+    lines (the round, the candidate being fitted) while the stages run, and Ctrl-C typed there
+    stops the campaign with exit 130."""
+    import os
+    import sys
+    from pathlib import Path
+
+    pexpect = pytest.importorskip("pexpect")
+    here = Path(__file__).parent
+    env = dict(os.environ, COLUMNS="160", LINES="50", TERM="xterm")
+    child = pexpect.spawn(sys.executable, ["-m", "omnibench", "campaign", "--port", "sim://?seed=8",
+                                           "--out", str(tmp_path / "c"), "--procedures",
+                                           str(here / "procedures" / "campaign"), "--analysis", "fit,diagnose",
+                                           "--candidates", "driver_deadband"],
+                          env=env, encoding="utf-8", timeout=600, dimensions=(50, 160))
+    try:
+        child.expect("== fit: omnibench fit")
+        child.expect(r"fit running, \d+ s")  # the spinner with the elapsed time
+        child.expect("== diagnose: omnibench diagnose")
+        child.expect("diagnose: fitting the declared model")  # the stage's own lines, as they come
+        child.expect(r"diagnose: round 1: (screening|fitting)")
+        child.sendintr()  # Ctrl-C
+        child.expect("campaign interrupted \\(Ctrl-C\\) in diagnose")
+        child.expect(pexpect.EOF)
+    finally:
+        child.close()
+    assert child.exitstatus == 130
