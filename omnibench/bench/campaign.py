@@ -391,7 +391,7 @@ def make_plots(results: dict[str, Any], out: Path, robot: Any) -> dict[str, str]
             for j in range(1, 5):
                 # each wheel set and wheel a little apart in voltage, open markers for the later
                 # sets: points at the same duty stay visible side by side instead of on top
-                dx = span * 0.006 * ((k - (len(sets) - 1) / 2) * 5 + (j - 2.5))
+                dx = span * 0.01 * ((k - (len(sets) - 1) / 2) * 5 + (j - 2.5))
                 ax.plot(grp["voltage"] + dx, grp[f"w{j}"], "os^v"[j - 1], ms=5, alpha=0.75, color=f"C{k}",
                         mfc=f"C{k}" if k == 0 else "none", mew=1.2,
                         label=f"{ws} ({grp['wheel_mass1'].iloc[0]:g} kg)" if j == 1 else None)

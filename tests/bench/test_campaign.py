@@ -111,3 +111,51 @@ def test_interrupted_campaign_resumes_without_redoing_complete_runs_or_mixing_ca
     assert 0 < lateral_steps < len(lateral.steps) == lateral.metadata["steps_planned"]
     assert list(lateral.steps["step"]) == list(range(len(lateral.steps)))
     assert (out / "report.md").is_file()
+
+
+@pytest.mark.slow
+def test_deadband_campaign_answers_with_the_diagnosed_model(capsys, tmp_path):
+    """The README's deadband world, in the short campaign: diagnose adds the deadband, and the
+    summary and the report lead with the diagnosed model (R_a within 3 SE of the world's; the
+    declared fit's R_a is far off), with the energy error of both models."""
+    import tomllib
+
+    from omnibench.bench.answer import with_se
+    from omnibench.model import default_robot, load_robot
+
+    out = tmp_path / "campaign"
+    try:
+        main(["campaign", "--port", "sim://?seed=8&effects.driver_deadband.u_0=0.04", "--out", str(out),
+              "--procedures", str(HERE / "procedures" / "campaign"), "--candidates", "driver_deadband,stribeck_friction",
+              "--json"])
+    except SystemExit as exc:  # pragma: no cover - only on failure
+        raise AssertionError(capsys.readouterr().err) from exc
+    captured = capsys.readouterr()
+    res = json.loads(captured.out)
+    diag = res["analysis"]["diagnose"]
+    assert [s["effect"] for s in diag["result"]["selected"]] == ["driver_deadband"]
+    world = default_robot().R_a
+    ra = diag["result"]["extended_fit"]["R_a"]
+    assert abs(ra["value"] - world) < 3 * ra["se"], ra
+    before = res["analysis"]["fit"]["result"]["parameters"]["R_a"]
+    assert abs(before["value"] - world) > 3 * before["se"]  # the declared fit is wrong: the answer must not be it
+    # the diagnosed model file carries the SEs
+    written = tomllib.loads((out / "model_diagnose.toml").read_text())
+    assert written["fit"]["parameters"]["R_a"]["se"] == pytest.approx(ra["se"])
+    assert load_robot(out / "model_diagnose.toml").R_a == pytest.approx(ra["value"])
+    # energy validated on both models
+    e_before = res["analysis"]["validate-energy"]["result"]["mean_abs_error_pct"]
+    e_after = diag["validate_energy"]["result"]["mean_abs_error_pct"]
+    assert e_after < e_before
+    # the terminal summary leads with the diagnosed model
+    summary = captured.err[captured.err.index("== summary"):]
+    assert "the model (diagnosed: declared model + driver_deadband" in summary
+    ra_line = next(line for line in summary.splitlines() if line.strip().startswith("R_a "))
+    assert with_se(ra["value"], ra["se"]) in ra_line and f"before {with_se(before['value'], before['se'])}" in ra_line
+    assert f"{e_before:.3g} % (declared fit) -> {e_after:.3g} % (diagnosed model)" in summary
+    # and so does the report
+    report = (out / "report.md").read_text()
+    head = report[:report.index("## The campaign")]
+    assert f"| R_a | {with_se(ra['value'], ra['se'])} |" in head
+    assert "with the declared fit →" in head and "with the diagnosed model" in head
+    assert "diagnose_heldout_error.png" in report  # every plot diagnose wrote is shown
