@@ -15,13 +15,15 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-_COUNT = re.compile(r"\((\d+)/(\d+)\)")
+#: a count in a progress line: "(3/12)" or "candidate 3 of 12"
+_COUNT = re.compile(r"\((\d+)/(\d+)\)|\b(\d+) of (\d+)\b")
 _active = 0  #: nesting depth of `working` (rich allows one live display at a time)
 
 
 class StageStatus:
     """What the spinner says: `label`, the elapsed seconds, the latest progress line and, when
-    that line carries a count `(k/N)`, the seconds left at the rate the count has gone so far."""
+    that line carries a count (`(k/N)` or `k of N`), the seconds left at the rate the count has
+    gone so far."""
 
     def __init__(self, label: str, clock: Any = time.monotonic) -> None:
         self.label, self.clock = label, clock
@@ -39,7 +41,7 @@ class StageStatus:
         m = _COUNT.search(line)
         if m is None:
             return
-        k, n = int(m.group(1)), int(m.group(2))
+        k, n = (int(m.group(1)), int(m.group(2))) if m.group(1) else (int(m.group(3)), int(m.group(4)))
         series = line[:m.start()].rsplit(":", 1)[0] + f"/{n}"  # "round 1/12": a new round restarts the rate
         now = self.clock()
         if self._count_start is None or self._count_start[0] != series or k < self._count_start[1]:

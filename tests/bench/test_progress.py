@@ -59,6 +59,9 @@ def test_stage_status_counts_its_way_to_an_eta() -> None:
     assert st.text() == "diagnose running, 40 s: round 1: fitting driver_deadband (3/4), ETA 20 s"
     st.update("round 2: fitting cogging (1/3)")  # a new round starts its own count
     assert st.eta() is None
+    clock.t = 50.0
+    st.update("round 2: fitting stribeck_friction (candidate 2 of 3) [00:50]")  # diagnose's own wording
+    assert st.eta() == pytest.approx(20.0)
 
 
 def test_tee_passes_lines_on_and_keeps_them() -> None:
