@@ -158,4 +158,6 @@ def test_deadband_campaign_answers_with_the_diagnosed_model(capsys, tmp_path):
     head = report[:report.index("## The campaign")]
     assert f"| R_a | {with_se(ra['value'], ra['se'])} |" in head
     assert "with the declared fit →" in head and "with the diagnosed model" in head
-    assert "diagnose_heldout_error.png" in report  # every plot diagnose wrote is shown
+    assert "diagnose_heldout_error.png" in report
+    for png in (out / "plots").rglob("*.png"):  # every plot the campaign drew is shown
+        assert str(png.relative_to(out)) in report, png
