@@ -161,3 +161,12 @@ def test_deadband_campaign_answers_with_the_diagnosed_model(capsys, tmp_path):
     assert "diagnose_heldout_error.png" in report
     for png in (out / "plots").rglob("*.png"):  # every plot the campaign drew is shown
         assert str(png.relative_to(out)) in report, png
+
+
+def test_quiet_campaign_prints_only_the_report_path(capsys, tmp_path):
+    out = tmp_path / "c"
+    main(["-q", "campaign", "--port", "sim://?seed=8", "--out", str(out), "--procedures",
+          str(HERE / "procedures" / "campaign"), "--analysis", "none"])
+    captured = capsys.readouterr()
+    assert captured.out == f"{out / 'report.md'}\n" and captured.err == ""
+    assert (out / "report.md").is_file()
