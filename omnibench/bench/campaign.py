@@ -305,6 +305,8 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
     plots = list(res.get("plots") or []) if isinstance(res, dict) else []
     if isinstance(res, dict):  # diagnose names its plots under "written"
         plots += [p for p in ((res.get("written") or {}).get("plots") or []) if p not in plots]
+    if plots:
+        lines.append("")  # the figures as their own paragraph, not inside the last list item
     for p in plots:
         with contextlib.suppress(ValueError):
             lines.append(f"![{name}]({Path(p).resolve().relative_to(out.resolve())})")
