@@ -47,8 +47,12 @@ def plot_sweep_fit(robot: Any, obs: Any, residuals: pd.DataFrame, folder: str | 
             colour = f"C{k}"
             keep = u_row[np.isclose(u_row["F_N"], g["F_N"].iloc[0])]
             fill = keep["used"].to_numpy(bool) if len(keep) == len(g) else np.ones(len(g), bool)
-            ax.scatter(g["u"][fill], g["omega"][fill], color=colour, s=14, label=f"{mass:g} kg measured")
-            ax.scatter(g["u"][~fill], g["omega"][~fill], facecolors="none", edgecolors=colour, s=14)
+            # each wheel load its own marker and line style, drawn half transparent: the sets lie
+            # close together and must not hide one another
+            mk, ls = "o^sv"[k % 4], ("-", "--", ":", "-.")[k % 4]
+            ax.scatter(g["u"][fill], g["omega"][fill], color=colour, s=22, marker=mk, alpha=0.7,
+                       label=f"{mass:g} kg measured")
+            ax.scatter(g["u"][~fill], g["omega"][~fill], facecolors="none", edgecolors=colour, s=22, marker=mk)
             # model curve
             grid = np.linspace(g["u"].min(), g["u"].max(), 40)
             grid = grid[np.abs(grid) > 1e-6]
@@ -57,7 +61,7 @@ def plot_sweep_fit(robot: Any, obs: Any, residuals: pd.DataFrame, folder: str | 
                                  "omega": 0.0, "omega_se": np.nan, "current": np.nan, "current_se": np.nan,
                                  "n": 0, "steady": True})
             cur = predict_observations(robot, Observations(sweep=fake), ["sweep"])
-            ax.plot(grid, cur["predicted"], color=colour, lw=1.2, label=f"{mass:g} kg model")
+            ax.plot(grid, cur["predicted"], color=colour, lw=1.2, ls=ls, alpha=0.85, label=f"{mass:g} kg model")
         ax.set_title(f"wheel {j}")
         ax.grid(alpha=0.3)
     for ax in axes[1]:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from omnibench import __version__
+from omnibench.bench.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.bench.procedure import PROCEDURES, default_procedure_path
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
@@ -28,8 +29,9 @@ COMMAND_OF = {
     "energy_trajectories": "energy",
 }
 ANALYSIS = ("fit", "validate-energy", "diagnose")
-#: runs the analysis stages: (runs_dir, out, robot_file, echo, stages) -> results by stage name
-Analyse = Callable[[Path, Path, "Path | None", Callable[[str], None], tuple[str, ...]], dict[str, Any]]
+#: runs the analysis stages: (runs_dir, out, robot_file, echo, stages, *, into=None, earlier=None) -> results by
+#: stage name; `into` receives each stage as it ends, `earlier` holds an interrupted campaign's stages to keep
+Analyse = Callable[..., dict[str, Any]]
 
 
 def procedure_files(folder: Path | None) -> dict[str, Path]:
@@ -71,7 +73,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
                  resume: bool = False, without_current: bool = False,
                  operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
-                 verbosity: int = 0) -> dict[str, Any]:
+                 verbosity: int = 0, stage_options: dict[str, tuple[str, ...]] | None = None) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -79,7 +81,14 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     hold runs yet (the analysis reads every run there, so two campaigns must not mix).
 
     analyse(runs_dir, out, robot_file, echo, stages) runs the analysis stages and returns their
-    results by name (the command line passes omnibench.cli.stages.run_analysis); None skips them."""
+    results by name (the command line passes omnibench.cli.stages.run_analysis); None skips them.
+    stage_options: more options for a stage's command, by stage name (e.g. diagnose's --candidates).
+
+    Ctrl-C (KeyboardInterrupt) at any point: the motors are stopped (the procedure's run is marked
+    aborted), report.md and campaign.json are written with what finished and where it stopped
+    ("status": "interrupted", "stopped_at"), and the KeyboardInterrupt goes on to the caller.
+    With `resume`, analysis stages that finished before the interruption are kept when no run
+    changed since."""
     from omnibench.bench.procedure import load_plan
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
 
@@ -104,40 +113,83 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     t0 = time.monotonic()
     results: dict[str, Any] = {"port": port, "out": str(out), "tool_version": __version__,
                                "robot_file": str(robot_file) if robot_file else "default", "procedures": {},
-                               "analysis": {}}
-    for p, f in files.items():
-        (prior, status), = earlier.get(p, [(None, None)])
-        if status == "complete":
-            echo(f"== {COMMAND_OF[p]}: kept (complete) {prior}")
-            results["procedures"][p] = completed_run_summary(p, prior, echo)
-            continue
-        echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
-        res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
-                          progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
-                          resume=prior, without_current=without_current, operator=operator, plot=plot,
-                          verbosity=verbosity)
-        results["procedures"][p] = res
-    if analyse is None:
-        results["analysis"] = {n: {"status": "skipped", "why": "no analysis runner given"} for n in ANALYSIS}
-    else:
-        results["analysis"] = analyse(runs_dir, out, robot_file, echo, stages)
-    plots = make_plots(results, out, robot)
-    results["plots"] = plots
+                               "analysis": {}, "status": "running"}
+    earlier_analysis = _interrupted_analysis(out) if resume else None
+    where = ""
+    try:
+        for p, f in files.items():
+            (prior, status), = earlier.get(p, [(None, None)])
+            if status == "complete":
+                echo(f"== {COMMAND_OF[p]}: kept (complete) {prior}")
+                results["procedures"][p] = completed_run_summary(p, prior, echo)
+                continue
+            earlier_analysis = None  # the runs change: every analysis stage runs again
+            where = COMMAND_OF[p]
+            echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
+            res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
+                              progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
+                              resume=prior, without_current=without_current, operator=operator, plot=plot,
+                              verbosity=verbosity)
+            results["procedures"][p] = res
+        where = "analysis"
+        if analyse is None:
+            results["analysis"] = {n: {"status": "skipped", "why": "no analysis runner given"} for n in ANALYSIS}
+        else:
+            kwargs: dict[str, Any] = {"into": results["analysis"]}
+            if earlier_analysis:
+                kwargs["earlier"] = earlier_analysis
+            if stage_options:
+                kwargs["extra"] = stage_options
+            analyse(runs_dir, out, robot_file, echo, stages, **kwargs)
+    except KeyboardInterrupt:
+        where = next((n for n, st in results["analysis"].items() if st.get("status") == "interrupted"), where)
+        results.update(status="interrupted", stopped_at=where)
+        echo(f"campaign interrupted (Ctrl-C) in {where}: the motors are stopped, the runs and the finished "
+             f"stages are kept in {out}; continue with: omnibench campaign --resume --port {port} --out {out}")
+        _finish(results, out, robot, t0, echo, summary=False)
+        raise
+    results["status"] = "complete"
+    _finish(results, out, robot, t0, echo, summary=True)
+    return results
+
+
+def _interrupted_analysis(out: Path) -> dict[str, Any] | None:
+    """The analysis stages of the interrupted campaign in `out` (its campaign.json), else None."""
+    try:
+        data = json.loads((out / "campaign.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("status") != "interrupted" or not isinstance(data.get("analysis"), dict):
+        return None
+    return data["analysis"]
+
+
+def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Callable[[str], None], *,
+            summary: bool) -> None:
+    """Plots, report.md, report.html and campaign.json for `results` (complete or interrupted)."""
+    from omnibench.bench.html_report import write_html
+    from omnibench.runs.store import json_ready
+
+    try:
+        results["plots"] = make_plots(results, out, robot)
+    except Exception as exc:  # noqa: BLE001 - an interrupted campaign's partial data must not lose the report
+        if results.get("status") != "interrupted":
+            raise
+        results["plots"] = {}
+        echo(f"   (plots left out: {type(exc).__name__}: {exc})")
     results["host_seconds"] = time.monotonic() - t0
     report = write_report(results, out, robot)
     results["report"] = str(report)
-    from omnibench.bench.html_report import write_html
-
     results["report_html"] = str(write_html(report))
-    from omnibench.runs.store import json_ready
-
     (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
                                        encoding="utf-8")
-    from omnibench.bench.summary import campaign_summary
+    if summary:
+        from omnibench.bench.summary import campaign_summary
 
-    for line in campaign_summary(results):
-        echo(line)
-    return results
+        for line in campaign_summary(results):
+            echo(line)
+    else:
+        echo(f"report so far: {results['report']} and {results['report_html']}")
 
 
 # --------------------------------------------------------------------------- analysis stages
@@ -169,6 +221,13 @@ def _pct(v: Any) -> str:
     return "–"
 
 
+def _pct3(v: Any) -> str:
+    """A value already in percent, to 3 significant digits ('–' when missing)."""
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        return f"{v:.3g} %"
+    return "–"
+
+
 def diagnose_lines(res: dict[str, Any]) -> list[str]:
     """Markdown for diagnose's JSON: what was added and why, held-out error before/after,
     what was rejected, what stays ambiguous or unexplained."""
@@ -181,7 +240,7 @@ def diagnose_lines(res: dict[str, Any]) -> list[str]:
     if res["selected"]:
         lines += ["**Added**", ""]
         for sel in res["selected"]:
-            params = ", ".join(f"{k} = {_fmt_num(v.get('value'))} ± {_fmt_num(v.get('se'))} {v.get('unit', '')}".rstrip()
+            params = ", ".join(f"{k} = {with_se(v.get('value'), v.get('se'))} {unit_words(v.get('unit'))}".rstrip()
                                for k, v in (sel.get("parameters") or {}).items())
             ev = sel.get("evidence") or {}
             lines.append(f"- `{sel['effect']}` ({sel.get('title', '')}): {params}; likelihood ratio "
@@ -214,12 +273,14 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
     res = st.get("result")
     lines: list[str] = []
     if isinstance(res, dict) and isinstance(res.get("parameters"), dict):
-        lines += ["", "| parameter | value | std. error | 95 % interval | unit | verdict |", "|---|---|---|---|---|---|"]
+        lines += ["", "| parameter | value ± SE | 95 % interval | unit | verdict |", "|---|---|---|---|---|"]
         for k, v in res["parameters"].items():
             if isinstance(v, dict):
                 ci = v.get("ci95") or [None, None]
-                lines.append(f"| {k} | {_fmt_num(v.get('value'))} | {_fmt_num(v.get('se'))} | "
-                             f"[{_fmt_num(ci[0])}, {_fmt_num(ci[1])}] | {v.get('unit', '')} | {v.get('verdict', '')} |")
+                se = v.get("se") if v.get("identifiable", True) else None
+                lines.append(f"| {k} | {with_se(v.get('value'), se)} | "
+                             f"[{rounded_like(ci[0], se)}, {rounded_like(ci[1], se)}] | {unit_words(v.get('unit'))} | "
+                             f"{v.get('verdict', '')} |")
         lines.append("")
         for key in ("rank", "n_parameters", "condition_number"):
             if key in res:
@@ -250,10 +311,69 @@ def analysis_lines(name: str, st: dict[str, Any], out: Path) -> list[str]:
         body = (st.get("stdout") or "").strip()
         if body:
             lines += ["", "```", *body.splitlines()[-40:], "```"]
-    plots = res.get("plots") if isinstance(res, dict) else None
-    for p in plots or []:
+    plots = list(res.get("plots") or []) if isinstance(res, dict) else []
+    if isinstance(res, dict):  # diagnose names its plots under "written"
+        plots += [p for p in ((res.get("written") or {}).get("plots") or []) if p not in plots]
+    if plots:
+        lines.append("")  # the figures as their own paragraph, not inside the last list item
+    for p in plots:
         with contextlib.suppress(ValueError):
             lines.append(f"![{name}]({Path(p).resolve().relative_to(out.resolve())})")
+    return lines + [""]
+
+
+def answer_lines(ans: Answer, out: Path) -> list[str]:
+    """The report's first section: what was identified, how well, what diagnosis added, the
+    energy error before/after, and the final model's coefficient table."""
+    lines = ["## The answer", ""]
+    if not ans.coefficients:
+        return lines + ["Nothing was identified: the fit did not run or failed (see Analysis below).", ""]
+    n = len(ans.coefficients)
+    if ans.model == "diagnosed":
+        added = " and ".join(f"`{s.get('effect')}` ({s.get('title', '')})".replace(" ()", "") for s in ans.added)
+        lines.append(f"**Identified**: the declared model plus {added}, which diagnosis added: {n} coefficients, "
+                     "each with its standard error (SE) and 95 % interval (value ± 1.96 SE). "
+                     "*Before* is the declared model's fit, before diagnosis.")
+    else:
+        lines.append(f"**Identified**: the declared model, {n} coefficients, each with its standard error (SE), "
+                     "95 % interval (value ± 1.96 SE) and identifiability verdict."
+                     + (" Diagnosis added nothing: no candidate effect earned its parameters on held-out runs."
+                        if ans.heldout else ""))
+    lines.append("")
+    if ans.model == "diagnosed":
+        lines += ["| coefficient | value ± SE | 95 % interval | unit | before (declared fit) |", "|---|---|---|---|---|"]
+        for c in ans.coefficients:
+            cell = c.cells()
+            name = f"**{c.name}** (added)" if c.added else c.name
+            lines.append(f"| {name} | {cell['value']} | {cell['ci95']} | {cell['unit']} | {cell['before']} |")
+    else:
+        lines += ["| coefficient | value ± SE | 95 % interval | unit | verdict |", "|---|---|---|---|---|"]
+        for c in ans.coefficients:
+            cell = c.cells()
+            lines.append(f"| {c.name} | {cell['value']} | {cell['ci95']} | {cell['unit']} | {c.verdict} |")
+    lines.append("")
+    if ans.energy_before is not None:
+        if ans.energy_after is not None:
+            lines.append(f"- **Energy** (predicted vs measured battery energy, mean |error|): {_pct3(ans.energy_before)} "
+                         f"with the declared fit → **{_pct3(ans.energy_after)}** with the diagnosed model")
+        else:
+            lines.append(f"- **Energy** (predicted vs measured battery energy, mean |error|): {_pct3(ans.energy_before)}")
+    if ans.fit_error:
+        lines.append("- **How well** the declared fit matches the runs (NRMSE): "
+                     + ", ".join(f"{k} {_pct(v)}" for k, v in ans.fit_error.items()))
+    if ans.heldout:
+        lines.append("- **Held-out error** (runs the fit did not see), declared → "
+                     + ("diagnosed" if ans.model == "diagnosed" else "refitted") + ": "
+                     + ", ".join(f"{k} {_pct(b)} → {_pct(a)}" for k, (b, a) in ans.heldout.items()))
+    for s in ans.added:
+        vals = ", ".join(f"{k.split('.')[-1]} = {with_se(v.get('value'), v.get('se'))} {unit_words(v.get('unit'))}".rstrip()
+                         for k, v in (s.get("parameters") or {}).items())
+        lines.append(f"- **Diagnosis added** `{s.get('effect')}`: {vals}")
+    for un in ans.unexplained:
+        lines.append(f"- **Left unexplained**: {un.get('group')} against {un.get('variable')}")
+    if ans.model_file:
+        with contextlib.suppress(ValueError):
+            lines.append(f"- model file: `{Path(ans.model_file).resolve().relative_to(out.resolve())}`")
     return lines + [""]
 
 
@@ -276,11 +396,17 @@ def make_plots(results: dict[str, Any], out: Path, robot: Any) -> dict[str, str]
     if "upside_down_sweep" in runs:
         st = runs["upside_down_sweep"].steps
         fig, ax = plt.subplots(figsize=(7, 4.5))
-        for k, (ws, grp) in enumerate(st.groupby("wheel_set", sort=False)):
+        sets = list(st.groupby("wheel_set", sort=False))
+        span = float(st["voltage"].abs().max() or 1.0)
+        for k, (ws, grp) in enumerate(sets):
             for j in range(1, 5):
-                ax.plot(grp["voltage"], grp[f"w{j}"], "os^v"[j - 1], ms=4, alpha=0.7, color=f"C{k}",
+                # each wheel set and wheel a little apart in voltage, open markers for the later
+                # sets: points at the same duty stay visible side by side instead of on top
+                dx = span * 0.01 * ((k - (len(sets) - 1) / 2) * 5 + (j - 2.5))
+                ax.plot(grp["voltage"] + dx, grp[f"w{j}"], "os^v"[j - 1], ms=5, alpha=0.75, color=f"C{k}",
+                        mfc=f"C{k}" if k == 0 else "none", mew=1.2,
                         label=f"{ws} ({grp['wheel_mass1'].iloc[0]:g} kg)" if j == 1 else None)
-        ax.set_xlabel("motor voltage u·V_batt (V)")
+        ax.set_xlabel("motor voltage u·V_batt (V); wheels FL, FR, RL, RR: ○ □ △ ▽, set apart slightly")
         ax.set_ylabel("steady wheel speed (rad/s)")
         ax.set_title("III.i upside-down sweep: steady speed per wheel")
         ax.axhline(0, color="grey", lw=0.5)
@@ -346,16 +472,22 @@ def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
 
     ports = sorted({str(read_run(r["run"]).metadata.get("port")) for r in results["procedures"].values()
                     if r.get("run")}) or [results["port"]]
-    lines = ["# omnibench campaign report", "",
-             f"- port: {', '.join(f'`{x}`' for x in ports)}", f"- robot file: {results['robot_file']} ({robot.name})",
-             f"- omnibench {results['tool_version']}",
-             f"- host time: {results.get('host_seconds', math.nan):.0f} s", ""]
+    lines = ["# omnibench campaign report", ""]
+    if results.get("status") == "interrupted":
+        lines += [f"**Interrupted (Ctrl-C) in {results.get('stopped_at')}**: this report holds what "
+                  "finished before; `omnibench campaign --resume` with the same `--out` continues from there.", ""]
+    lines += answer_lines(campaign_answer(results.get("analysis") or {}), out)
+    lines += ["## The campaign", "",
+              f"- port: {', '.join(f'`{x}`' for x in ports)}", f"- robot file: {results['robot_file']} ({robot.name})",
+              f"- omnibench {results['tool_version']}",
+              f"- host time: {results.get('host_seconds', math.nan):.0f} s"]
     first = next(iter(results["procedures"].values()), None)
     if first and first.get("run"):
         board = read_run(first["run"]).metadata.get("board") or {}
         if board:
             lines += [f"- board: id {board.get('board_id')}, firmware {board.get('firmware_version')}, "
-                      f"protocol {board.get('protocol_version')}, capabilities {', '.join(board.get('capabilities', []))}", ""]
+                      f"protocol {board.get('protocol_version')}, capabilities {', '.join(board.get('capabilities', []))}"]
+    lines.append("")
     lines += ["## Procedures", ""]
     for p, res in results["procedures"].items():
         run = read_run(res["run"])
@@ -372,12 +504,20 @@ def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
     for name, st in results["analysis"].items():
         if st["status"] == "skipped":
             lines.append(f"- **{name}: skipped** — {st['why']}")
+        elif st["status"] == "interrupted":
+            lines.append(f"- **{name}: interrupted** (Ctrl-C) — `{st.get('command', '')}`")
         else:
             lines.append(f"- **{name}: {st['status']}** — `{st['command']}`")
             if st["status"] == "failed" and st.get("stderr"):
                 lines.append(f"  - error: {st['stderr'].strip().splitlines()[-1]}")
             else:
+                if name == "fit" and (results.get("analysis", {}).get("diagnose") or {}).get("result", {}).get("selected"):
+                    lines.append("  - the declared model's fit, **before** diagnosis (the answer above is the diagnosed model)")
                 lines += analysis_lines(name, st, out)
+                after = st.get("validate_energy")
+                if name == "diagnose" and isinstance(after, dict):
+                    lines.append(f"- **validate-energy on the diagnosed model: {after['status']}** — `{after.get('command', '')}`")
+                    lines += analysis_lines("validate-energy", after, out)
     lines.append("")
     path = out / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")

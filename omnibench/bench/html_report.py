@@ -18,7 +18,7 @@ body { font-family: system-ui, sans-serif; max-width: 70rem; margin: 2rem auto; 
 h1 { border-bottom: 2px solid #ccc; padding-bottom: .3rem; }
 h2 { margin-top: 2rem; border-bottom: 1px solid #ddd; }
 table { border-collapse: collapse; margin: .6rem 0; font-size: .92rem; }
-th, td { border: 1px solid #ccc; padding: .25rem .55rem; text-align: left; }
+th, td { border: 1px solid #ccc; padding: .25rem .55rem; text-align: left; font-variant-numeric: tabular-nums; }
 th { background: #f2f2f4; }
 tr:nth-child(even) td { background: #fafafa; }
 code { background: #f2f2f4; padding: 0 .2rem; border-radius: 3px; font-size: .9em; }

@@ -41,6 +41,8 @@ class LiveView:
         self._step: Any = None
         self._sample: Any = None
         self._started = time.monotonic()
+        self._paused_at: float | None = None  # wall time a prompt began (None: running)
+        self._paused_total = 0.0  # wall seconds spent at prompts: not the robot's work, not in the ETA
         self._plot = _Plot() if plot else None
 
     # -- runner hooks -----------------------------------------------------------------------
@@ -48,6 +50,9 @@ class LiveView:
         self.done += dt
 
     def sample(self, step: Any, s: Any) -> None:
+        if self._paused_at is not None:  # the prompt was answered: the robot works again
+            self._paused_total += time.monotonic() - self._paused_at
+            self._paused_at = None
         if self._prev is not None and s.t > self._prev.t and step is self._step:
             k = 2 * math.pi / self.cpr / (s.t - self._prev.t)
             w = [(a - b) * k for a, b in zip(s.encoder, self._prev.encoder)]
@@ -61,7 +66,10 @@ class LiveView:
             self._draw()
 
     def pause(self) -> None:
-        """Stop redrawing (a prompt follows); the next sample starts the table again."""
+        """Stop redrawing (a prompt follows); the next sample starts the table again. The time
+        until then is a person's, not the procedure's: it is left out of the ETA."""
+        if self._paused_at is None:
+            self._paused_at = time.monotonic()
         if self._live is not None:
             self._live.stop()
             self._live = None
@@ -74,8 +82,11 @@ class LiveView:
 
     # -- drawing ------------------------------------------------------------------------------
     def eta(self) -> float | None:
-        """Wall seconds left, from the rate board time has advanced so far (None at the start)."""
-        spent = time.monotonic() - self._started
+        """Wall seconds left, from the rate board time has advanced so far, time at prompts left
+        out (None at the start)."""
+        now = time.monotonic()
+        waiting = self._paused_total + (now - self._paused_at if self._paused_at is not None else 0.0)
+        spent = now - self._started - waiting
         if self.done <= 0 or spent <= 0:
             return None
         return max(self.total - self.done, 0.0) * spent / self.done

@@ -91,7 +91,9 @@ def main(argv: list[str] | None = None) -> None:
         if isinstance(exc.__cause__, Terminated):  # click turns KeyboardInterrupt into Abort
             click.echo("omnibench: terminated (SIGTERM)", err=True)
             sys.exit(143)
-        click.echo("omnibench: aborted", err=True)
+        # click turns Ctrl-C (KeyboardInterrupt) into Abort; a declined prompt or ended input is Abort too
+        interrupted = isinstance(exc.__cause__, KeyboardInterrupt) or isinstance(exc.__context__, KeyboardInterrupt)
+        click.echo(f"omnibench: {'interrupted (Ctrl-C)' if interrupted else 'aborted'}", err=True)
         sys.exit(130)
     except click.ClickException as exc:  # usage errors too: one line, not click's three
         where = exc.ctx.command_path if isinstance(exc, click.UsageError) and exc.ctx else ""

@@ -26,6 +26,8 @@ from omnibench.errors import UserError
               help="SCPI ammeter on its own serial URL for the energy runs (default: the board's sensor).")
 @click.option("--analysis", "analysis", default="fit,validate-energy,diagnose", show_default=True,
               metavar="STAGES", help="Analysis stages to run after the procedures (comma list, or none).")
+@click.option("--candidates", default=None, metavar="NAME,...",
+              help="diagnose: only these candidate effects (default: the whole library, docs/effects.md).")
 @click.option("--resume", is_flag=True,
               help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
 @click.option("--without-current", is_flag=True,
@@ -43,7 +45,7 @@ from omnibench.errors import UserError
               metavar="RUN", help="--adaptive: a run of the robot's previous campaign (repeat the option): its "
               "fit's values and noise plan the first round; its data are not counted.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, resume: bool, without_current: bool, who: str,
+            ammeter: str | None, analysis: str, candidates: str | None, resume: bool, without_current: bool, who: str,
             plot: bool, as_json: bool, adaptive: bool, target_se: str | None, cost: str | None,
             robot_second: float, floor_length: float, no_current: bool, budget_minutes: float | None,
             budget_actions: int | None, prior_runs: tuple[Path, ...]) -> None:
@@ -70,12 +72,19 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     check_limits(floor_length, budget_minutes, budget_actions)
     costs = parse_costs(cost, robot_second)
     stages = parse_stages(analysis)
+    stage_options: dict[str, tuple[str, ...]] = {}
+    if candidates is not None:
+        from omnibench.cli.diagnose import _candidates
+
+        stage_options["diagnose"] = ("--candidates", ",".join(_candidates(candidates) or []))
     if adaptive:
         from omnibench.analysis.design.space import Limits
         from omnibench.bench.adaptive import run_adaptive_campaign
 
         if resume:
             raise UserError("--adaptive does not resume a campaign yet: start it in a new --out")
+        if stage_options:
+            raise UserError("--candidates does not apply to --adaptive yet")
         res = run_adaptive_campaign(port or "", out, target_se or "", robot_file=robot_file,
                                     procedures_dir=procedures_dir, costs=costs,
                                     limits=Limits(floor_length=floor_length), current=not no_current,
@@ -90,8 +99,10 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
                            progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
                            stages=stages, resume=resume,
                            without_current=without_current, operator=who, analyse=run_analysis, plot=plot,
-                           verbosity=level)
+                           verbosity=level, stage_options=stage_options)
     if as_json:
         from omnibench.runs.store import json_ready
 
         click.echo(json.dumps(json_ready(res), indent=2, default=str))
+    elif level < 0 and res.get("report"):  # -q: the one line a script needs
+        click.echo(str(res["report"]))

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
 from omnibench.cli.params import NonEmptyPath
+from omnibench.errors import UserError
 
 
 @click.group("import")
@@ -33,27 +35,80 @@ def command() -> None:
 def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, out: Path, as_json: bool) -> None:
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
     results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
+    from omnibench.cli import verbosity
     from omnibench.runs import read_run
-    from omnibench.runs.tfm import import_tfm, parse_signs
+    from omnibench.runs.tfm import file_digest, import_tfm, parse_signs
 
     from omnibench.cli.params import check_out_folder
 
     check_out_folder(out)
     sign_map = parse_signs(signs) if signs is not None else None
+    quiet = verbosity() < 0
+    earlier = _imported(out)
     results = []
     for f in files:
+        try:
+            digest = file_digest(f)
+        except OSError as exc:
+            raise UserError(f"{f}: cannot read ({exc.strerror or type(exc).__name__})") from None
+        if digest in earlier:
+            path, meta = earlier[digest]
+            _check_same_options(f, path, meta, sign_map, sketch)
+            run = read_run(path)
+            results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": True,
+                            "steps": int(len(run.steps)), "samples": int(len(run.samples))})
+            if not as_json:
+                click.echo(str(path) if quiet else f"{f}: already imported as {path} (same file): nothing changed")
+            continue
         path = import_tfm(f, out, signs=sign_map, sketch=sketch)
         run = read_run(path)
-        results.append({"file": str(f), "run": str(path), "procedure": run.procedure,
+        earlier[digest] = (path, run.metadata)
+        results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": False,
                         "steps": int(len(run.steps)), "samples": int(len(run.samples)),
                         "sign_map": run.metadata["sign_map"],
                         "mode": run.metadata.get("mode"), "firmware_timing": run.metadata.get("firmware_timing")})
-        if not as_json:
-            click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
-                       f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']}, "
-                       f"{run.metadata.get('mode')}, commands sent in wheel order "
-                       f"{run.metadata['firmware_timing']['command_order']}"
-                       + (f"; timing {run.metadata['firmware_timing']['source']}"
-                          if "assumed" in run.metadata['firmware_timing'].get("source", "") else "") + ")")
+        if as_json:
+            continue
+        if quiet:  # the one line a script needs
+            click.echo(str(path))
+            continue
+        click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
+                   f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']}, "
+                   f"{run.metadata.get('mode')}, commands sent in wheel order "
+                   f"{run.metadata['firmware_timing']['command_order']}"
+                   + (f"; timing {run.metadata['firmware_timing']['source']}"
+                      if "assumed" in run.metadata['firmware_timing'].get("source", "") else "") + ")")
     if as_json:
         click.echo(json.dumps(results, indent=2))
+
+
+def _imported(out: Path) -> dict[str, tuple[Path, dict[str, Any]]]:
+    """Runs already imported into `out`, by the SHA-256 of their source file."""
+    found: dict[str, tuple[Path, dict[str, Any]]] = {}
+    for run_json in sorted(out.glob("*/run.json")) if out.is_dir() else []:
+        try:
+            meta = json.loads(run_json.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue  # not ours to judge here; the analysis commands name unreadable runs
+        digest = meta.get("source_sha256") if isinstance(meta, dict) else None
+        if isinstance(digest, str):
+            found.setdefault(digest, (run_json.parent, meta))
+    return found
+
+
+def _check_same_options(f: Path, path: Path, meta: dict[str, Any], sign_map: Any, sketch: str | None) -> None:
+    """A second import of the same file with other --signs or --sketch is refused: the folder
+    would hold the same log twice, and every later analysis would count it twice."""
+    if sign_map is not None and list(sign_map) != list(meta.get("sign_map") or []):
+        raise UserError(f"{f}: already imported as {path} with sign map {meta.get('sign_map')}; remove that run "
+                        "to import it again with other --signs, or give another --out")
+    timing = meta.get("firmware_timing") or {}
+    if sketch is not None and sketch != _sketch_key(timing):
+        raise UserError(f"{f}: already imported as {path} with the {timing.get('sketch')} timing; remove that run "
+                        "to import it again with another --sketch, or give another --out")
+
+
+def _sketch_key(timing: dict[str, Any]) -> str | None:
+    from omnibench.runs.tfm import SKETCHES
+
+    return next((k for k, v in SKETCHES.items() if v.get("sketch") == timing.get("sketch")), None)

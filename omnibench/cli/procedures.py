@@ -86,6 +86,8 @@ def _make(name: str) -> click.Command:
             from omnibench.runs.store import json_ready
 
             click.echo(json.dumps(json_ready(result), indent=2, default=str))
+        elif level < 0 and result.get("run"):  # -q: the one line a script needs
+            click.echo(str(result["run"]))
 
     return cmd
 

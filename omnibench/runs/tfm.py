@@ -107,6 +107,17 @@ def kind_of(data: dict[str, Any]) -> str:
                     "runs), a 7-row `data` (square wave) or a 6-row `data` (RC log)")
 
 
+def file_digest(file: Path | str) -> str:
+    """SHA-256 of a file's bytes (hex): the identity of an imported log, whatever its path."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(file, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
 def import_tfm(
     file: Path | str,
     out: Path | str,
@@ -147,6 +158,7 @@ def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, A
         "firmware_timing": dict(timing),
         "source": SOURCE,
         "source_file": str(file),
+        "source_sha256": file_digest(file),  # `import tfm` knows the same log when it comes again
         "source_kind": kind,
         "sign_map": list(signs),
         "supply_voltage": SUPPLY_V,

@@ -26,7 +26,9 @@ def test_campaign_on_sim_writes_report(capsys, tmp_path):
     captured = capsys.readouterr()
     res = json.loads(captured.out)
     # the terminal summary: fitted values with SE, the energy error, both reports
-    assert "== summary" in captured.err and "fitted (value ± SE, verdict):" in captured.err
+    assert "== summary" in captured.err and "the model (declared fit; value ± SE, 95 % interval, verdict):" in captured.err
+    report_head = (out / "report.md").read_text().split("## The campaign")[0]
+    assert "## The answer" in report_head and "| R_a |" in report_head  # the report opens with the answer
     assert "energy: predicted vs measured, mean |error|" in captured.err and "report.html" in captured.err
     assert set(res["procedures"]) == {"upside_down_sweep", "forward_runs", "lateral_runs", "energy_trajectories"}
     for p in res["procedures"].values():
@@ -108,4 +110,63 @@ def test_interrupted_campaign_resumes_without_redoing_complete_runs_or_mixing_ca
     assert lateral.status == "complete" and len(lateral.metadata["segments"]) == 2
     assert 0 < lateral_steps < len(lateral.steps) == lateral.metadata["steps_planned"]
     assert list(lateral.steps["step"]) == list(range(len(lateral.steps)))
+    assert (out / "report.md").is_file()
+
+
+@pytest.mark.slow
+def test_deadband_campaign_answers_with_the_diagnosed_model(capsys, tmp_path):
+    """The README's deadband world, in the short campaign: diagnose adds the deadband, and the
+    summary and the report lead with the diagnosed model (R_a within 3 SE of the world's; the
+    declared fit's R_a is far off), with the energy error of both models."""
+    import tomllib
+
+    from omnibench.bench.answer import with_se
+    from omnibench.model import default_robot, load_robot
+
+    out = tmp_path / "campaign"
+    try:
+        main(["campaign", "--port", "sim://?seed=8&effects.driver_deadband.u_0=0.04", "--out", str(out),
+              "--procedures", str(HERE / "procedures" / "campaign"), "--candidates", "driver_deadband,stribeck_friction",
+              "--json"])
+    except SystemExit as exc:  # pragma: no cover - only on failure
+        raise AssertionError(capsys.readouterr().err) from exc
+    captured = capsys.readouterr()
+    res = json.loads(captured.out)
+    diag = res["analysis"]["diagnose"]
+    assert [s["effect"] for s in diag["result"]["selected"]] == ["driver_deadband"]
+    world = default_robot().R_a
+    ra = diag["result"]["extended_fit"]["R_a"]
+    assert abs(ra["value"] - world) < 3 * ra["se"], ra
+    before = res["analysis"]["fit"]["result"]["parameters"]["R_a"]
+    assert abs(before["value"] - world) > 3 * before["se"]  # the declared fit is wrong: the answer must not be it
+    # the diagnosed model file carries the SEs
+    written = tomllib.loads((out / "model_diagnose.toml").read_text())
+    assert written["fit"]["parameters"]["R_a"]["se"] == pytest.approx(ra["se"])
+    assert load_robot(out / "model_diagnose.toml").R_a == pytest.approx(ra["value"])
+    # energy validated on both models
+    e_before = res["analysis"]["validate-energy"]["result"]["mean_abs_error_pct"]
+    e_after = diag["validate_energy"]["result"]["mean_abs_error_pct"]
+    assert e_after < e_before
+    # the terminal summary leads with the diagnosed model
+    summary = captured.err[captured.err.index("== summary"):]
+    assert "the model (diagnosed: declared model + driver_deadband" in summary
+    ra_line = next(line for line in summary.splitlines() if line.strip().startswith("R_a "))
+    assert with_se(ra["value"], ra["se"]) in ra_line and f"before {with_se(before['value'], before['se'])}" in ra_line
+    assert f"{e_before:.3g} % (declared fit) -> {e_after:.3g} % (diagnosed model)" in summary
+    # and so does the report
+    report = (out / "report.md").read_text()
+    head = report[:report.index("## The campaign")]
+    assert f"| R_a | {with_se(ra['value'], ra['se'])} |" in head
+    assert "with the declared fit →" in head and "with the diagnosed model" in head
+    assert "diagnose_heldout_error.png" in report
+    for png in (out / "plots").rglob("*.png"):  # every plot the campaign drew is shown
+        assert str(png.relative_to(out)) in report, png
+
+
+def test_quiet_campaign_prints_only_the_report_path(capsys, tmp_path):
+    out = tmp_path / "c"
+    main(["-q", "campaign", "--port", "sim://?seed=8", "--out", str(out), "--procedures",
+          str(HERE / "procedures" / "campaign"), "--analysis", "none"])
+    captured = capsys.readouterr()
+    assert captured.out == f"{out / 'report.md'}\n" and captured.err == ""
     assert (out / "report.md").is_file()

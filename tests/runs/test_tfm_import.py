@@ -164,3 +164,41 @@ def test_rc_log_imports_as_random_duty_with_signs_read_off_the_data(tmp_path):
     obs = Observations.from_runs([run.path])
     info = obs.runs[obs.run_ids[0]]
     assert len(obs.step_response) == len(run.steps) and info["command_order"] == (1, 2, 4, 3)
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_second_import_of_the_same_file_changes_nothing_and_q_prints_the_run(tmp_path, capsys):
+    from omnibench.cli import main
+
+    def omnibench(*args: str) -> tuple[int, str, str]:
+        try:
+            main(list(args))
+            code = 0
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    out = tmp_path / "tfm"
+    code, first, err = omnibench("-q", "import", "tfm", str(DATA / "square_fast.mat"), "--out", str(out))
+    assert code == 0, err
+    (run_dir,) = list(out.iterdir())
+    assert first == f"{run_dir}\n" and err == ""  # -q: the one line a script needs
+    before = _tree(out)
+    # the same file again, also by another path (a copy): nothing imported, the run named
+    copy = tmp_path / "elsewhere" / "square_fast.mat"
+    copy.parent.mkdir()
+    copy.write_bytes((DATA / "square_fast.mat").read_bytes())
+    for f in (DATA / "square_fast.mat", copy):
+        code, again, err = omnibench("import", "tfm", str(f), "--out", str(out))
+        assert code == 0, err
+        assert again.strip() == f"{f}: already imported as {run_dir} (same file): nothing changed"
+        assert _tree(out) == before
+    # with another sign map it would be another reading of the same log: refused in one line
+    code, _, err = omnibench("import", "tfm", str(DATA / "square_fast.mat"), "--signs", "+1,+1,+1,+1",
+                             "--out", str(out))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "already imported" in err
+    assert _tree(out) == before

@@ -27,8 +27,26 @@ def model_toml(diag: Diagnosis) -> str:
         head.append(f"#   {c.name}: {vals}   (LR {c.lr:.1f}, p {c.p:.1e})")
     if not diag.selected:
         head.append("#   none: no candidate earned its parameters; coefficients refitted only.")
-    head.append("# SI units (see docs/robot-file.md and docs/effects.md).")
-    return "\n".join(head) + "\n" + tomli_w.dumps({"name": name, **data})
+    head.append("# SI units (see docs/robot-file.md and docs/effects.md). [fit]: the refitted coefficients'")
+    head.append("# standard errors and 95 % intervals (value ± 1.96 SE), as `omnibench fit` writes them.")
+    return "\n".join(head) + "\n" + tomli_w.dumps({"name": name, **data, "fit": fit_table(diag)})
+
+
+def fit_table(diag: Diagnosis) -> dict[str, Any]:
+    """The extended model's [fit] table: each refitted coefficient's value, standard error and
+    95 % interval (TOML has no NaN: an unknown SE is left out)."""
+    from omnibench import __version__
+
+    params: dict[str, Any] = {}
+    fit = diag.final_fit
+    for name in fit.free:
+        v, se = float(fit.values[name]), float(fit.se.get(name, math.nan))
+        entry: dict[str, Any] = {"value": v}
+        if math.isfinite(se):
+            entry.update(se=se, ci95=[v - 1.959964 * se, v + 1.959964 * se])
+        params[name] = entry
+    return {"tool": f"omnibench {__version__} diagnose", "procedures": list(diag.problem.procedures),
+            "added": [c.name for c in diag.selected], "parameters": params}
 
 
 def write_model(diag: Diagnosis, path: str | Path) -> Path:
