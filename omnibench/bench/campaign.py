@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,7 +20,7 @@ from typing import Any
 from omnibench import __version__
 from omnibench.bench.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.bench.procedure import PROCEDURES, default_procedure_path
-from omnibench.errors import UserError
+from omnibench.errors import Terminated, UserError
 from omnibench.locks import holds_out_folder
 
 COMMAND_OF = {
@@ -144,7 +145,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     except KeyboardInterrupt:
         where = next((n for n, st in results["analysis"].items() if st.get("status") == "interrupted"), where)
         results.update(status="interrupted", stopped_at=where)
-        echo(f"campaign interrupted (Ctrl-C) in {where}: the motors are stopped, the runs and the finished "
+        how = "terminated (SIGTERM)" if isinstance(sys.exc_info()[1], Terminated) else "interrupted (Ctrl-C)"
+        echo(f"campaign {how} in {where}: the motors are stopped, the runs and the finished "
              f"stages are kept in {out}; continue with: omnibench campaign --resume --port {port} --out {out}")
         _finish(results, out, robot, t0, echo, summary=False)
         raise

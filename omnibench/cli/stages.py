@@ -19,7 +19,7 @@ import click
 
 from omnibench.bench.campaign import ANALYSIS
 from omnibench.cli.progress import TeeStream, working
-from omnibench.errors import UserError
+from omnibench.errors import Terminated, UserError
 
 
 def _analysis_command(name: str) -> Any | None:
@@ -54,8 +54,10 @@ def _invoke(cmd: Any, name: str, args: list[str], on_line: Callable[[str], None]
         except SystemExit as exc:
             code = int(exc.code or 0)
         except (KeyboardInterrupt, click.exceptions.Abort) as exc:
-            # Ctrl-C (click turns it into Abort): the campaign must stop, not go on to the next stage
-            raise KeyboardInterrupt from exc
+            # Ctrl-C (click turns it into Abort): the campaign must stop, not go on to the next stage;
+            # SIGTERM (Terminated) keeps its own kind so that it is named as such
+            cause = exc if isinstance(exc, KeyboardInterrupt) else exc.__cause__
+            raise (Terminated() if isinstance(cause, Terminated) else KeyboardInterrupt()) from exc
         except UserError as exc:
             code = exc.exit_code
             err.write(f"omnibench: error: {exc}\n")
