@@ -259,6 +259,9 @@ class FitResult:
     structure: dict[str, dict[str, Any]] = field(default_factory=dict)
     nfev: int = 0
     date: str = ""
+    #: digest of what the fit saw (`fit_digest`): a model file's [fit] table carries it, so that
+    #: diagnose can tell that a model was fitted to exactly its runs and need not fit it again
+    digest: str = ""
 
     @property
     def fitted(self) -> list[str]:
@@ -778,8 +781,47 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         group_s2={g: v * stated_factor.get(g, 1.0) for g, v in group_s2.items()}, group_dof=group_dof,
         initial={p: param_value(robot, p) for p in free},
         fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
+        digest=fit_digest(pred, used, free),
         date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     )
+
+
+def fit_digest(pred: Predictor, used: np.ndarray, free: Sequence[str]) -> str:
+    """SHA-256 (hex) of what a fit saw: every observation entry (procedure, run, step, wheel,
+    signal, measured value, standard error, used or not) and the free parameters' names."""
+    import hashlib
+
+    h = hashlib.sha256()
+    t = pred.table
+    for col in ("procedure", "run", "step", "wheel", "signal"):
+        h.update("\x1f".join(map(str, t[col].tolist())).encode())
+    h.update(np.ascontiguousarray(pred.measured, dtype=float).tobytes())
+    h.update(np.ascontiguousarray(pred.sigma, dtype=float).tobytes())
+    h.update(np.ascontiguousarray(used, dtype=bool).tobytes())
+    h.update("\x1f".join(free).encode())
+    return h.hexdigest()
+
+
+def robot_digest(robot: Any) -> str:
+    """SHA-256 (hex) of every value of a robot (its repr: floats round-trip exactly)."""
+    import hashlib
+
+    return hashlib.sha256(repr(robot).encode()).hexdigest()
+
+
+def refit_needed(robot: Any, obs: Observations, procedures: Sequence[str], fit_info: Mapping[str, Any]) -> bool:
+    """False when `robot` is, unchanged, what `fit(…, obs, procedures=procedures)` wrote with
+    its default free parameters: its [fit] table (`fit_info`) names these procedures, the
+    digest of these observations (`fit_digest`) and the digest of this robot (`robot_digest`).
+    Fitting it again would start from the closed form and land on the same optimum (to the
+    fit's tolerance): diagnose then starts from the file's values instead."""
+    if not fit_info or list(fit_info.get("procedures", [])) != list(procedures):
+        return True
+    if fit_info.get("robot_digest") != robot_digest(robot) or "fitted" not in fit_info:
+        return True
+    pred = Predictor(obs, procedures)
+    free = default_free(robot, obs, procedures)
+    return fit_info.get("digest") != fit_digest(pred, _usable(pred, robot), free)
 
 
 #: Residual smoothness (z of the lag-1 autocorrelation) above which a group is flagged as structured.

@@ -50,3 +50,23 @@ def test_skipped_blocks_copy_robot_zero_from_the_cache(robot, obs):
     out = pred.predict([shifted])  # not cached from the copied row: simulated now
     assert pred.simulated > n
     np.testing.assert_array_equal(out[0], full[1])
+
+
+def test_model_fitted_to_these_runs_is_not_fitted_again(robot, truth, tmp_path):
+    """diagnose starts from a model file `omnibench fit` wrote for the same runs (its [fit] table
+    carries digests of the observations and of the fitted robot); any change means a refit."""
+    from omnibench.analysis.fitting import fit, refit_needed
+    from omnibench.analysis.model_file import load_model, write_model
+    from omnibench.analysis.simcampaign import simulated_observations
+
+    obs = simulated_observations(truth, seed=5, procedures=("sweep",))
+    res = fit(robot, obs, procedures=["sweep"])
+    path = write_model(tmp_path / "model.toml", res)
+    model, info = load_model(path)
+    assert info["fitted"] == res.fitted
+    assert not refit_needed(model, obs, ["sweep"], info)
+    assert refit_needed(model.replace(m=model.m + 0.1), obs, ["sweep"], info)  # an edited model
+    other = simulated_observations(truth, seed=6, procedures=("sweep",))
+    assert refit_needed(model, other, ["sweep"], info)  # other runs
+    assert refit_needed(model, obs, ["sweep", "forward"], info)  # other procedures
+    assert refit_needed(robot, obs, ["sweep"], {})  # a plain robot file
