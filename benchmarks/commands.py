@@ -14,7 +14,7 @@ Runs in a temporary folder (or --work DIR, kept), each as its own `omnibench` pr
 CPU is the child process's user + system time (one thread when NUMBA_NUM_THREADS=1, which
 --threads 1 sets: the figure that does not depend on other work on the machine); wall is what
 the operator waits. With --profile each command runs under cProfile and the time is split by
-stage (cumulative time of the functions that do each part; the stages nest, e.g. Jacobians
+stage (cumulative CPU time of the functions that do each part; the stages nest, e.g. Jacobians
 are part of settle passes, so the rows do not add up):
 
     simulations      simulator.simulate_batch (every model prediction)
@@ -83,6 +83,27 @@ def commands(work: Path, data: Path, only: set[str]) -> list[tuple[str, list[lis
     return [(n, a) for n, a in out if not only or n in only]
 
 
+#: run the command line under cProfile timed by this process's CPU (not wall: other work on the
+#: machine does not count); argv: profile file, then the command's arguments
+_PROFILED = """
+import cProfile, sys, time
+from omnibench.cli import main
+out, sys.argv = sys.argv[1], ["omnibench"] + sys.argv[2:]
+pr = cProfile.Profile(time.process_time)
+pr.enable()
+try:
+    main()
+except SystemExit as exc:
+    code = exc.code
+else:
+    code = 0
+finally:
+    pr.disable()
+    pr.dump_stats(out)
+sys.exit(code)
+"""
+
+
 def stage_profile(prof: Path) -> dict[str, float]:
     """Cumulative seconds per stage (STAGES) in a cProfile dump."""
     st = pstats.Stats(str(prof))
@@ -103,8 +124,7 @@ def run(name: str, argvs: list[list[str]], work: Path, env: dict[str, str], prof
     stages: dict[str, float] = {}
     for k, argv in enumerate(argvs):
         prof = work / f"{name}-{k}.prof"
-        cmd = ([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "omnibench", *argv] if profile
-               else [exe, *argv])
+        cmd = ([sys.executable, "-c", _PROFILED, str(prof), *argv] if profile else [exe, *argv])
         r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.monotonic()
         with open(log, "a") as fh:

@@ -46,7 +46,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -542,8 +542,12 @@ def _pinned(value: float, bounds: tuple[float, float], scale: float) -> str:
 
 
 def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
-        procedures: Sequence[str] | None = None, max_nfev: int = 40) -> FitResult:
+        procedures: Sequence[str] | None = None, max_nfev: int = 40,
+        progress: Callable[[str], None] | None = None) -> FitResult:
     """Weighted least-squares fit of `free` parameters to `obs` through the simulator.
+
+    progress: called with a line at each stage (identifiability, each warm-start procedure, the
+    joint fit, its reweighted pass).
 
     robot: the starting model (its values are the start point and hold every fixed parameter).
     free: parameter names (default `default_free`). procedures: which observation tables enter
@@ -602,6 +606,8 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     prob = _Problem(start, pred, free, used, sigma)
     x0 = np.array([param_value(start, p) for p in free]) / prob.scale
     # ---- identifiability at the start point: hold invisible combinations fixed
+    say = progress or (lambda msg: None)
+    say(f"identifiability of {len(free)} parameters from {int(used.sum())} observations")
     J0 = prob.jacobian(x0)
     rank_req, cond_req, null = _null_analysis(J0, free)
     fixed: list[str] = []
@@ -639,6 +645,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             sub = [p for p in active if p in names]
             if proc not in procs or not sub:
                 continue
+            say(f"warm start on the {proc} runs: {', '.join(sub)}")
             mask = (pred.table["procedure"] == proc).to_numpy()
             sp = _Problem(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
             xs, _ = _solve(sp, sub, robot, np.array([param_value(current, p) for p in sub]) / sp.scale, max_nfev)
@@ -647,6 +654,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     prob = _Problem(current, pred, active, used, sigma)
     xa = np.array([param_value(current, p) for p in active]) / prob.scale
     passes = 2 if unknown[used].any() else 1
+    say(f"joint fit of {len(active)} parameters ({', '.join(active)})")
     for pass_ in range(passes):
         xa, J = _solve(prob, active, robot, xa, max_nfev)
         if pass_ + 1 < passes:
@@ -667,6 +675,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     stated_factor = {str(g): 1.0 for g in np.unique(groups)}
     sigma_stated = sigma.copy()
     if reweight is not None:
+        say("joint fit again, each group weighted by its own noise")
         stated_factor = {str(g): float(reweight[groups == g][0]) ** 2 for g in np.unique(groups)}
         sigma = sigma * reweight
         prob.sigma = sigma

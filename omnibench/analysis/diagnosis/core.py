@@ -262,7 +262,8 @@ def _finding_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict
 
 
 def _base_free(robot: Any, obs: Observations, procs: Sequence[str],
-               fit_info: Mapping[str, Any] | None = None) -> tuple[Any, list[str], list[str]]:
+               fit_info: Mapping[str, Any] | None = None,
+               say: Callable[[str], None] | None = None) -> tuple[Any, list[str], list[str]]:
     """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit;
     from `fit_info`, the model file's [fit] table, when `robot` is what `omnibench fit` wrote for
     these runs: fitting.refit_needed)."""
@@ -278,7 +279,7 @@ def _base_free(robot: Any, obs: Observations, procs: Sequence[str],
             if p not in free:
                 notes.append(f"{p} held at its robot-file value: {entry.get('reason', '')}")
         return robot, free, notes
-    res = fitting.fit(robot, obs, procedures=fit_procs)
+    res = fitting.fit(robot, obs, procedures=fit_procs, progress=(lambda m: say(f"declared model: {m}")) if say else None)
     free = [p for p in res.fitted]
     for p in res.free:
         if p not in free:
@@ -303,11 +304,13 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             raise UserError(f"unknown candidate effect {n!r}; known: {', '.join(EFFECTS)}")
     pool: list[Effect] = [EFFECTS[n] for n in names if n not in robot.effects]
     say("fitting the declared model")
-    start, free, notes = _base_free(robot, obs, procs, fit_info)
+    start, free, notes = _base_free(robot, obs, procs, fit_info, say)
     free += [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
     problem = engine.Problem(obs, procs)
     if not problem.used.any():
         raise UserError("no usable measurements in these runs")
+    say(f"fitting the declared model to all {len(problem)} measurements ({len(free)} parameters, "
+        f"{', '.join(problem.procedures)})")
     base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV)
     fold = engine.cv_folds(problem, folds, seed)
     base_struct, n_tests = _structure_of(problem, base)
