@@ -82,8 +82,10 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
     if plots is not None:
         check_out_folder(plots, "--plots")
     from omnibench.analysis.model_file import load_model
+    from omnibench.model import load_robot
 
-    robot, fit_info = load_model(model)
+    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
+    fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
     obs = Observations.from_runs(runs, robot=robot)
     if not obs.procedures():
         raise UserError("the runs hold no measurements diagnose can use (sweep, forward, lateral, energy, step_response)")
