@@ -20,6 +20,8 @@ are part of settle passes, so the rows do not add up):
     simulations      simulator.simulate_batch (every model prediction)
     Jacobians        the finite-difference Jacobians of the fits (fitting._Problem.jacobian,
                      engine.fit_model's jac and its final Jacobian)
+    fitting.fit      the user's fit (`omnibench fit`; diagnose's declared model when its file
+                     is not the fit of these runs)
     model fits       engine.fit_model (its settle passes: weighted fits until the scales settle)
     screening        engine.screen (first-order score of every candidate)
     candidate fits   engine.fit_candidate / fit_candidates (full refits of the promising ones)
@@ -56,6 +58,7 @@ STAGES: dict[str, list[tuple[str, str]]] = {
     "simulations": [("model/simulator.py", "simulate_batch")],
     "Jacobians": [("analysis/fitting.py", "jacobian"), ("diagnosis/engine.py", "jac"),
                   ("diagnosis/engine.py", "_final_jacobian")],
+    "fitting.fit": [("analysis/fitting.py", "fit")],
     "model fits": [("diagnosis/engine.py", "fit_model")],
     "screening": [("diagnosis/engine.py", "screen")],
     "candidate fits": [("diagnosis/engine.py", "fit_candidate"), ("diagnosis/engine.py", "fit_candidates")],
