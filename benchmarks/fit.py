@@ -69,14 +69,15 @@ def main() -> None:
     # warm up the compiled kernel (first-call compile is not the fit's cost)
     obs = simulated_observations(truth, seed=0, procedures=["sweep", "forward", "lateral"])
     fit(robot, obs.select(procedures=["sweep"]), ["a"], procedures=["sweep"])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = fit(robot, obs)
-    dt = time.perf_counter() - t0
-    print(f"full simulated-campaign fit: {dt:.2f} s for {len(res.fitted)} parameters, "
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(f"full simulated-campaign fit: {dt:.2f} s wall, {cpu:.2f} s CPU for {len(res.fitted)} parameters, "
           f"{int(res.residuals['used'].sum())} observations, {res.nfev} simulated parameter sets "
           f"(target <= 10 s)")
-    monte_carlo(robot, truth, range(1000, 1000 + args.sweep_seeds), ["sweep"], "III.i sweep alone (with currents)",
-                args.generator)
+    if args.sweep_seeds:
+        monte_carlo(robot, truth, range(1000, 1000 + args.sweep_seeds), ["sweep"], "III.i sweep alone (with currents)",
+                    args.generator)
     if args.seeds:
         monte_carlo(robot, truth, range(2000, 2000 + args.seeds), ["sweep", "forward", "lateral"],
                     "whole campaign (sweep, forward, lateral)", args.generator)

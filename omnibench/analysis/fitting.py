@@ -46,7 +46,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -259,6 +259,9 @@ class FitResult:
     structure: dict[str, dict[str, Any]] = field(default_factory=dict)
     nfev: int = 0
     date: str = ""
+    #: digest of what the fit saw (`fit_digest`): a model file's [fit] table carries it, so that
+    #: diagnose can tell that a model was fitted to exactly its runs and need not fit it again
+    digest: str = ""
 
     @property
     def fitted(self) -> list[str]:
@@ -539,8 +542,12 @@ def _pinned(value: float, bounds: tuple[float, float], scale: float) -> str:
 
 
 def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
-        procedures: Sequence[str] | None = None, max_nfev: int = 40) -> FitResult:
+        procedures: Sequence[str] | None = None, max_nfev: int = 40,
+        progress: Callable[[str], None] | None = None) -> FitResult:
     """Weighted least-squares fit of `free` parameters to `obs` through the simulator.
+
+    progress: called with a line at each stage (identifiability, each warm-start procedure, the
+    joint fit, its reweighted pass).
 
     robot: the starting model (its values are the start point and hold every fixed parameter).
     free: parameter names (default `default_free`). procedures: which observation tables enter
@@ -599,6 +606,8 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     prob = _Problem(start, pred, free, used, sigma)
     x0 = np.array([param_value(start, p) for p in free]) / prob.scale
     # ---- identifiability at the start point: hold invisible combinations fixed
+    say = progress or (lambda msg: None)
+    say(f"identifiability of {len(free)} parameters from {int(used.sum())} observations")
     J0 = prob.jacobian(x0)
     rank_req, cond_req, null = _null_analysis(J0, free)
     fixed: list[str] = []
@@ -636,6 +645,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             sub = [p for p in active if p in names]
             if proc not in procs or not sub:
                 continue
+            say(f"warm start on the {proc} runs: {', '.join(sub)}")
             mask = (pred.table["procedure"] == proc).to_numpy()
             sp = _Problem(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
             xs, _ = _solve(sp, sub, robot, np.array([param_value(current, p) for p in sub]) / sp.scale, max_nfev)
@@ -644,6 +654,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     prob = _Problem(current, pred, active, used, sigma)
     xa = np.array([param_value(current, p) for p in active]) / prob.scale
     passes = 2 if unknown[used].any() else 1
+    say(f"joint fit of {len(active)} parameters ({', '.join(active)})")
     for pass_ in range(passes):
         xa, J = _solve(prob, active, robot, xa, max_nfev)
         if pass_ + 1 < passes:
@@ -664,6 +675,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     stated_factor = {str(g): 1.0 for g in np.unique(groups)}
     sigma_stated = sigma.copy()
     if reweight is not None:
+        say("joint fit again, each group weighted by its own noise")
         stated_factor = {str(g): float(reweight[groups == g][0]) ** 2 for g in np.unique(groups)}
         sigma = sigma * reweight
         prob.sigma = sigma
@@ -778,8 +790,47 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         group_s2={g: v * stated_factor.get(g, 1.0) for g, v in group_s2.items()}, group_dof=group_dof,
         initial={p: param_value(robot, p) for p in free},
         fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
+        digest=fit_digest(pred, used, free),
         date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     )
+
+
+def fit_digest(pred: Predictor, used: np.ndarray, free: Sequence[str]) -> str:
+    """SHA-256 (hex) of what a fit saw: every observation entry (procedure, run, step, wheel,
+    signal, measured value, standard error, used or not) and the free parameters' names."""
+    import hashlib
+
+    h = hashlib.sha256()
+    t = pred.table
+    for col in ("procedure", "run", "step", "wheel", "signal"):
+        h.update("\x1f".join(map(str, t[col].tolist())).encode())
+    h.update(np.ascontiguousarray(pred.measured, dtype=float).tobytes())
+    h.update(np.ascontiguousarray(pred.sigma, dtype=float).tobytes())
+    h.update(np.ascontiguousarray(used, dtype=bool).tobytes())
+    h.update("\x1f".join(free).encode())
+    return h.hexdigest()
+
+
+def robot_digest(robot: Any) -> str:
+    """SHA-256 (hex) of every value of a robot (its repr: floats round-trip exactly)."""
+    import hashlib
+
+    return hashlib.sha256(repr(robot).encode()).hexdigest()
+
+
+def refit_needed(robot: Any, obs: Observations, procedures: Sequence[str], fit_info: Mapping[str, Any]) -> bool:
+    """False when `robot` is, unchanged, what `fit(…, obs, procedures=procedures)` wrote with
+    its default free parameters: its [fit] table (`fit_info`) names these procedures, the
+    digest of these observations (`fit_digest`) and the digest of this robot (`robot_digest`).
+    Fitting it again would start from the closed form and land on the same optimum (to the
+    fit's tolerance): diagnose then starts from the file's values instead."""
+    if not fit_info or list(fit_info.get("procedures", [])) != list(procedures):
+        return True
+    if fit_info.get("robot_digest") != robot_digest(robot) or "fitted" not in fit_info:
+        return True
+    pred = Predictor(obs, procedures)
+    free = default_free(robot, obs, procedures)
+    return fit_info.get("digest") != fit_digest(pred, _usable(pred, robot), free)
 
 
 #: Residual smoothness (z of the lag-1 autocorrelation) above which a group is flagged as structured.

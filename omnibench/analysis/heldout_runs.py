@@ -148,7 +148,7 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
     if floor:
         folds += [(r, air) for r in floor]
     out = []
-    for held, train_runs in folds:
+    for k, (held, train_runs) in enumerate(folds):
         if not train_runs:
             continue
         train = obs.select(runs=train_runs)
@@ -157,7 +157,7 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
         if alts:
             err.assumed_sketch = str(obs.runs[held].get("timing_sketch", err.assumed_sketch))
         for label, model in models.items():
-            say(f"{held}: fitting {label} to {len(train_runs)} other run(s)")
+            say(f"{held} (held-out run {k + 1} of {len(folds)}): fitting {label} to {len(train_runs)} other run(s)")
             fitted = fit_physics(model, train, max_nfev)
             err.nrmse[label], series = _run_error(fitted, obs, held)
             if series is not None:

@@ -66,6 +66,13 @@ def fit_table(result: Any, runs: list[str] | None = None) -> dict[str, Any]:
             out[key] = v
     if result.notes:
         out["notes"] = list(result.notes)
+    if getattr(result, "digest", ""):
+        from omnibench.analysis.fitting import robot_digest
+
+        # what the fit saw and wrote: diagnose on the same runs need not fit this model again
+        out["fitted"] = list(result.fitted)
+        out["digest"] = result.digest
+        out["robot_digest"] = robot_digest(result.robot)
     return out
 
 

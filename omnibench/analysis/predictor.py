@@ -23,6 +23,7 @@ How each procedure is reproduced (always through the simulator, so any declared 
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -38,6 +39,10 @@ SWEEP_HOLD = 0.3  # s simulated per sweep steady state
 PHYSICS_DT = 1e-3  # s
 RECORD_DT = 0.01  # s, model angle sampling for the drive-speed fit
 COAST = 0.5  # s simulated after the motors stop in a timed run (the robot is at rest well before)
+#: Predictions kept per Predictor (numbers, over all cached parameter sets): a fit asks again for
+#: parameter sets it has simulated (the start of each settle pass, the Jacobian at the solution,
+#: the next fit's start), and the kernel's numbers do not depend on the batch (kernel._groups)
+CACHE_NUMBERS = 10_000_000
 
 #: Observation-vector columns (metadata of every entry)
 ENTRY_COLUMNS = ["procedure", "run", "step", "wheel", "signal", "unit", "measured", "sigma", "speed", "F_N",
@@ -89,6 +94,9 @@ class Predictor:
         self.table = pd.DataFrame(self.entries, columns=ENTRY_COLUMNS)
         self.measured = self.table["measured"].to_numpy(dtype=float)
         self.sigma = self.table["sigma"].to_numpy(dtype=float)
+        self._cache: OrderedDict[tuple[str, int | None], np.ndarray] = OrderedDict()
+        self._substeps: dict[tuple[str, ...], int] = {}
+        self.simulated = 0  # trajectory-group simulations run (a parameter set in one group; cache misses)
 
     # ------------------------------------------------------------------------ building
     def _add(self, **e: Any) -> int:
@@ -234,12 +242,17 @@ class Predictor:
 
     def substeps(self, robots: Sequence[Any]) -> int:
         """Integrator sub-steps that keep every robot's friction regularisation stable."""
-        lam = 0.0
-        for g in self.groups.values():
-            for s in {(sc.mode, sc.payload) : sc for sc in g.scen}.values():
-                for r in robots:
-                    lam = max(lam, prepare(r, s).substeps_lambda)
-        return stable_substeps(lam, PHYSICS_DT)
+        key = tuple(repr(r) for r in robots)
+        if key not in self._substeps:
+            lam = 0.0
+            for g in self.groups.values():
+                for s in {(sc.mode, sc.payload) : sc for sc in g.scen}.values():
+                    for r in robots:
+                        lam = max(lam, prepare(r, s).substeps_lambda)
+            if len(self._substeps) > 4096:
+                self._substeps.clear()
+            self._substeps[key] = stable_substeps(lam, PHYSICS_DT)
+        return self._substeps[key]
 
     def group_entries(self) -> dict[tuple, np.ndarray]:
         """Entry indices each simulation group predicts."""
@@ -252,15 +265,68 @@ class Predictor:
                 same_as_first: Mapping[tuple, set[int]] | None = None) -> np.ndarray:
         """Predictions (len(robots), len(self)) of every entry, one simulate_batch call per group.
 
+        A parameter set predicted before (same robot, same sub-steps) is not simulated again: the
+        result is the cached one, bit for bit what a new simulation would give.
+
         same_as_first: {group key: robot indices} whose predictions in that group are known to
         equal robot 0's (a parameter the group does not depend on); they are not simulated."""
+        keys = [(repr(r), substeps) for r in robots]
+        out = np.full((len(robots), len(self.entries)), np.nan)
+        skipped = {p for s in (same_as_first or {}).values() for p in s if p != 0}
+        todo: list[int] = []  # first index of every parameter set not in the cache
+        first: dict[tuple[str, int | None], int] = {}
+        for p, key in enumerate(keys):
+            if p in skipped:
+                todo.append(p)
+                continue
+            hit = self._cache.get(key)
+            if hit is not None:
+                out[p] = hit
+                self._cache.move_to_end(key)
+            elif key not in first:
+                first[key] = p
+                todo.append(p)
+        if todo:
+            # same_as_first's indices refer to `robots`: renumber them for the ones simulated;
+            # their skipped blocks copy robot 0's numbers (simulated now, or from the cache)
+            pos = {p: q for q, p in enumerate(todo)}
+            sub_skip = {k: {pos[p] for p in s if p in pos and p != 0} for k, s in (same_as_first or {}).items()}
+            row0 = None if (not sub_skip or 0 in pos) else out[0]
+            sim = self._simulate([robots[p] for p in todo], substeps, sub_skip, row0)
+            for q, p in enumerate(todo):
+                out[p] = sim[q]
+                if p not in skipped:  # a row with copied blocks is not a simulation: not cached
+                    self._store(keys[p], sim[q])
+        for p, key in enumerate(keys):  # a parameter set asked for twice in this call
+            if p not in skipped and p not in todo and key in first and first[key] != p:
+                out[p] = out[first[key]]
+        return out
+
+    def _store(self, key: tuple[str, int | None], f: np.ndarray) -> None:
+        self._cache[key] = f.copy()
+        limit = max(16, CACHE_NUMBERS // max(len(self.entries), 1))
+        while len(self._cache) > limit:
+            self._cache.popitem(last=False)
+
+    def _simulate(self, robots: Sequence[Any], substeps: int | None, same_as_first: Mapping[tuple, set[int]],
+                  row0: np.ndarray | None = None) -> np.ndarray:
+        """`predict` without the cache. Blocks in same_as_first copy robot 0's numbers, or `row0`'s
+        when it is given (robot 0 was predicted before and is not among `robots`)."""
         P = len(robots)
         out = np.full((P, len(self.entries)), np.nan)
         for key, g in self.groups.items():
             t_cmd, U, shift, t_end = g.built()
             n = U.shape[0]
-            skip = (same_as_first or {}).get(key, set())
-            sims = [p for p in range(P) if p == 0 or p not in skip]
+            skip = same_as_first.get(key, set())
+            sims = [p for p in range(P) if p not in skip or (p == 0 and row0 is None)]
+            idx = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
+            if row0 is not None:
+                for p in range(P):
+                    if p not in sims:
+                        out[p, idx] = row0[idx]
+            if not sims:
+                continue
+            self.simulated += len(sims)
             rob = [with_supply(robots[p], g.v_batt[k]) for p in sims for k in range(n)]
             res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
                                  dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
@@ -269,8 +335,7 @@ class Predictor:
                 for k, ex in enumerate(g.extract):
                     self._extract(out[p], res, q * n + k, ex, shift,
                                   None if slopes is None else slopes[q * n + k])
-            if len(sims) < P:
-                idx = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
+            if row0 is None and 0 in sims:
                 for p in range(P):
                     if p not in sims:
                         out[p, idx] = out[0, idx]

@@ -72,7 +72,6 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
     from omnibench.analysis.diagnosis import diagnose
     from omnibench.analysis.diagnosis.report import write_model, write_plots
     from omnibench.analysis.observations import Observations
-    from omnibench.model import load_robot
 
     from omnibench.cli.params import check_out_folder
     from omnibench.runs.check import check_output, checked_runs
@@ -82,7 +81,11 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         check_output(out, runs)
     if plots is not None:
         check_out_folder(plots, "--plots")
-    robot = load_robot(model)
+    from omnibench.analysis.model_file import load_model
+    from omnibench.model import load_robot
+
+    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
+    fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
     obs = Observations.from_runs(runs, robot=robot)
     if not obs.procedures():
         raise UserError("the runs hold no measurements diagnose can use (sweep, forward, lateral, energy, step_response)")
@@ -91,7 +94,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         click.echo(f"diagnose: {msg}", err=True)
 
     diag = diagnose(robot, obs, candidates=names, procedures=procs, alpha=alpha, max_effects=max_effects,
-                    seed=seed, progress=progress)
+                    seed=seed, progress=progress, fit_info=fit_info)
     held = None
     if loro:
         from omnibench.analysis.diagnosis.loro import heldout_runs

@@ -24,7 +24,13 @@ MAX_LENGTH = 64  #: longer strings are refused before any parsing
 
 @lru_cache(maxsize=1)
 def registry() -> pint.UnitRegistry:
-    return pint.UnitRegistry()
+    """pint's registry, its parsed definitions cached on disk by pint (~/.cache/pint: 0.05 s
+    instead of 0.3-0.5 s of CPU in every command that reads a robot file); uncached when that
+    folder cannot be used."""
+    try:
+        return pint.UnitRegistry(cache_folder=":auto:")
+    except Exception:  # noqa: BLE001 - a read-only home or a pint without the cache
+        return pint.UnitRegistry()
 
 
 def parse_quantity(text: str) -> tuple[float, str | None]:

@@ -36,6 +36,7 @@ Algorithm (docs/diagnose.md has the long form):
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -260,15 +261,25 @@ def _finding_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict
     return out
 
 
-def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any, list[str], list[str]]:
-    """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit)."""
+def _base_free(robot: Any, obs: Observations, procs: Sequence[str],
+               fit_info: Mapping[str, Any] | None = None,
+               say: Callable[[str], None] | None = None) -> tuple[Any, list[str], list[str]]:
+    """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit;
+    from `fit_info`, the model file's [fit] table, when `robot` is what `omnibench fit` wrote for
+    these runs: fitting.refit_needed)."""
     from omnibench.analysis import fitting
 
     fit_procs = [p for p in fitting.DEFAULT_PROCEDURES if p in procs]
     notes: list[str] = []
     if not fit_procs:
         return robot, [], ["no sweep/forward/lateral data: the declared model's coefficients are held at the robot file's values"]
-    res = fitting.fit(robot, obs, procedures=fit_procs)
+    if fit_info and not fitting.refit_needed(robot, obs, fit_procs, fit_info):
+        free = [str(p) for p in fit_info["fitted"]]
+        for p, entry in fit_info.get("parameters", {}).items():
+            if p not in free:
+                notes.append(f"{p} held at its robot-file value: {entry.get('reason', '')}")
+        return robot, free, notes
+    res = fitting.fit(robot, obs, procedures=fit_procs, progress=(lambda m: say(f"declared model: {m}")) if say else None)
     free = [p for p in res.fitted]
     for p in res.free:
         if p not in free:
@@ -279,9 +290,11 @@ def _base_free(robot: Any, obs: Observations, procs: Sequence[str]) -> tuple[Any
 def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None = None,
              procedures: Sequence[str] | None = None, alpha: float = ALPHA, max_effects: int = 3,
              top_k: int = 4, folds: int = engine.CV_FOLDS, seed: int = 0,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """Close the loop on `obs` for the declared `robot`; see the module docstring."""
-    say = progress or (lambda s: None)
+             progress: Callable[[str], None] | None = None, fit_info: Mapping[str, Any] | None = None) -> Diagnosis:
+    """Close the loop on `obs` for the declared `robot`; see the module docstring. fit_info: the
+    model file's [fit] table (model_file.load_model), if any: a model `omnibench fit` wrote for
+    these very runs is not fitted again (`_base_free`)."""
+    say = _timed(progress)
     procs = [p for p in (procedures or obs.procedures()) if len(obs.table(p))]
     if not procs:
         raise UserError("no observations to diagnose")
@@ -291,11 +304,13 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             raise UserError(f"unknown candidate effect {n!r}; known: {', '.join(EFFECTS)}")
     pool: list[Effect] = [EFFECTS[n] for n in names if n not in robot.effects]
     say("fitting the declared model")
-    start, free, notes = _base_free(robot, obs, procs)
+    start, free, notes = _base_free(robot, obs, procs, fit_info, say)
     free += [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
     problem = engine.Problem(obs, procs)
     if not problem.used.any():
         raise UserError("no usable measurements in these runs")
+    say(f"fitting the declared model to all {len(problem)} measurements ({len(free)} parameters, "
+        f"{', '.join(problem.procedures)})")
     base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV)
     fold = engine.cv_folds(problem, folds, seed)
     base_struct, n_tests = _structure_of(problem, base)
@@ -340,7 +355,8 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
     for rnd in range(1, max_effects + 1):
         if not pool and not core_params.candidates(problem, current):
             break
-        say(f"round {rnd}: screening {len(pool)} candidate effects")
+        n_sets = sum(len(e.fit) * max(len(e.forms), 1) for e in pool)
+        say(f"round {rnd}: screening {len(pool)} candidate effects ({n_sets} parameter sets to simulate)")
         scr = _screen(problem, current, pool) if pool else None
         m = len(pool) + len(core_params.candidates(problem, current))
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
@@ -348,6 +364,9 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         tried: list[Candidate] = []
         passing: list[Candidate] = []
         best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
+        # how many the screen sends to a full fit (the fallback may add more): for the progress line
+        n_lead = min(top_k, sum(1 for e in pool if scr.approx_lr[e.name] / thr[e.name]
+                                >= max(RELATIVE_SCREEN * best_ratio, SCREEN_FRACTION)))
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
@@ -356,7 +375,8 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             fallback = not passing and top_k <= n_fitted < MAX_FITS
             leading = ratio >= RELATIVE_SCREEN * best_ratio
             if (n_fitted < top_k and leading or fallback) and ratio >= SCREEN_FRACTION:
-                say(f"round {rnd}: fitting {e.name}")
+                say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {max(n_lead, n_fitted + 1)}"
+                    + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "") + ")")
                 try:
                     cf, c.form, c.form_margin = _fit_forms(problem, current, e, scr.estimate[e.name])
                 except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
@@ -468,6 +488,26 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
                      rejected=rejected, ambiguous=ambiguous, unexplained=final_sig, base_structure=base_sig,
                      before=engine.error_table(problem, base_ho), after=engine.error_table(problem, final_ho),
                      problem=problem, base_heldout=base_ho, final_heldout=final_ho, notes=notes, exposed_by=exposed)
+
+
+def _timed(progress: Callable[[str], None] | None) -> Callable[[str], None]:
+    """progress with the time since the diagnosis started and, from the second line on, the
+    time the previous step took (what the next similar step will take, roughly)."""
+    if progress is None:
+        return lambda s: None
+    t0 = time.monotonic()
+    last = [t0]
+
+    def say(msg: str) -> None:
+        now = time.monotonic()
+        step = f", previous step {now - last[0]:.0f} s" if last[0] > t0 else ""
+        last[0] = now
+        progress(f"{msg} [{_mmss(now - t0)}{step}]")
+    return say
+
+
+def _mmss(s: float) -> str:
+    return f"{int(s // 60)}:{int(s % 60):02d}"
 
 
 def _prefer_nested(passing: list[Candidate], p_needed: float) -> list[Candidate]:

@@ -1,0 +1,199 @@
+"""What a user waits for: the README's own commands on their own run folders, CPU and wall each,
+and where the time goes (issue 34).
+
+Runs in a temporary folder (or --work DIR, kept), each as its own `omnibench` process:
+
+    campaign        omnibench campaign --port sim:// --out campaign          (clean simulated robot)
+    fit             omnibench fit campaign/runs --out model.toml               (the campaign's run folders)
+    validate-energy omnibench validate-energy --model model.toml campaign/runs
+    diagnose        omnibench diagnose --model model.toml campaign/runs
+    deadband        omnibench campaign --port "sim://?effects.driver_deadband.u_0=0.04" --out campaign-deadband
+    loro            omnibench import tfm <2019 logs> --out runs/tfm; omnibench diagnose --model omnibot.toml runs/tfm --loro
+    independent     omnibench campaign --port "sim://?plant=independent" --out campaign-independent
+
+CPU is the child process's user + system time (one thread when NUMBA_NUM_THREADS=1, which
+--threads 1 sets: the figure that does not depend on other work on the machine); wall is what
+the operator waits. With --profile each command runs under cProfile and the time is split by
+stage (cumulative CPU time of the functions that do each part; the stages nest, e.g. Jacobians
+are part of settle passes, so the rows do not add up):
+
+    simulations      simulator.simulate_batch (every model prediction)
+    Jacobians        the finite-difference Jacobians of the fits (fitting._Problem.jacobian,
+                     engine.fit_model's jac and its final Jacobian)
+    fitting.fit      the user's fit (`omnibench fit`; diagnose's declared model when its file
+                     is not the fit of these runs)
+    model fits       engine.fit_model (its settle passes: weighted fits until the scales settle)
+    screening        engine.screen (first-order score of every candidate)
+    candidate fits   engine.fit_candidate / fit_candidates (full refits of the promising ones)
+    CV folds         engine.heldout_residuals
+    robust SEs       robust_se.cluster_se, encoder_se.encoder_se
+    structure        diagnosis structure tests
+
+    .venv/bin/python benchmarks/commands.py                       # all, one thread
+    .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
+    .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import pstats
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
+DEFAULT_DATA = next((p / "shared" / "data" / "omnibot-tfm" for p in HERE.parents
+                     if (p / "shared" / "data" / "omnibot-tfm").is_dir()), Path("/work/shared/data/omnibot-tfm"))
+
+#: stage -> (module path fragment, function name) pairs whose cumulative time is the stage's
+STAGES: dict[str, list[tuple[str, str]]] = {
+    "simulations": [("model/simulator.py", "simulate_batch")],
+    "Jacobians": [("analysis/fitting.py", "jacobian"), ("diagnosis/engine.py", "jac"),
+                  ("diagnosis/engine.py", "_final_jacobian")],
+    "fitting.fit": [("analysis/fitting.py", "fit")],
+    "model fits": [("diagnosis/engine.py", "fit_model")],
+    "screening": [("diagnosis/engine.py", "screen")],
+    "candidate fits": [("diagnosis/engine.py", "fit_candidate"), ("diagnosis/engine.py", "fit_candidates")],
+    "CV folds": [("diagnosis/engine.py", "heldout_residuals")],
+    "robust SEs": [("diagnosis/robust_se.py", "cluster_se"), ("diagnosis/encoder_se.py", "encoder_se")],
+    "structure": [("diagnosis/core.py", "_structure_of")],
+    "reading runs": [("analysis/observations.py", "from_runs")],
+}
+
+
+def commands(work: Path, data: Path, only: set[str]) -> list[tuple[str, list[list[str]]]]:
+    """(name, argument lists run one after another) of every command asked for."""
+    toml = str(ROOT / "omnibench" / "model" / "omnibot.toml")
+    mats = sorted(glob.glob(str(data / "*.mat")))
+    out = [
+        ("campaign", [["campaign", "--port", "sim://", "--out", "campaign"]]),
+        ("fit", [["fit", "campaign/runs", "--out", "model.toml"]]),
+        ("validate-energy", [["validate-energy", "--model", "model.toml", "campaign/runs"]]),
+        ("diagnose", [["diagnose", "--model", "model.toml", "campaign/runs", "--out", "model_diagnosed.toml"]]),
+        ("deadband", [["campaign", "--port", "sim://?effects.driver_deadband.u_0=0.04", "--out", "campaign-deadband"]]),
+        ("loro", [["import", "tfm", *mats, "--out", "runs/tfm"],
+                  ["diagnose", "--model", toml, "runs/tfm", "--loro"]]),
+        ("independent", [["campaign", "--port", "sim://?plant=independent", "--out", "campaign-independent"]]),
+    ]
+    return [(n, a) for n, a in out if not only or n in only]
+
+
+#: run the command line under cProfile timed by this process's CPU (not wall: other work on the
+#: machine does not count); argv: profile file, then the command's arguments
+_PROFILED = """
+import cProfile, sys, time
+from omnibench.cli import main
+out, sys.argv = sys.argv[1], ["omnibench"] + sys.argv[2:]
+pr = cProfile.Profile(time.process_time)
+pr.enable()
+try:
+    main()
+except SystemExit as exc:
+    code = exc.code
+else:
+    code = 0
+finally:
+    pr.disable()
+    pr.dump_stats(out)
+sys.exit(code)
+"""
+
+
+def stage_profile(prof: Path) -> dict[str, float]:
+    """Cumulative seconds per stage (STAGES) in a cProfile dump."""
+    st = pstats.Stats(str(prof))
+    out = {k: 0.0 for k in STAGES}
+    for (path, _line, func), (_cc, _nc, _tt, ct, _callers) in st.stats.items():  # type: ignore[attr-defined]
+        for stage, keys in STAGES.items():
+            if any(path.endswith(frag) and func == name for frag, name in keys):
+                out[stage] += ct
+    return out
+
+
+def run(name: str, argvs: list[list[str]], work: Path, env: dict[str, str], profile: bool,
+        log: Path) -> tuple[float, float, int, dict[str, float]]:
+    """(CPU s, wall s, exit code, stage profile) of one command (all its argument lists)."""
+    exe = str(Path(sys.executable).parent / "omnibench")
+    cpu = wall = 0.0
+    code = 0
+    stages: dict[str, float] = {}
+    for k, argv in enumerate(argvs):
+        prof = work / f"{name}-{k}.prof"
+        cmd = ([sys.executable, "-c", _PROFILED, str(prof), *argv] if profile else [exe, *argv])
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.monotonic()
+        with open(log, "a") as fh:
+            fh.write(f"\n$ omnibench {' '.join(argv)}\n")
+            fh.flush()
+            p = subprocess.run(cmd, cwd=work, env=env, stdout=fh, stderr=subprocess.STDOUT)
+        wall += time.monotonic() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu += (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+        code = code or p.returncode
+        if profile and prof.is_file():
+            for s, v in stage_profile(prof).items():
+                stages[s] = stages.get(s, 0.0) + v
+    return cpu, wall, code, stages
+
+
+def _mmss(s: float) -> str:
+    return f"{int(s // 60)}:{s % 60:04.1f}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", default="", help="comma list of: campaign, fit, validate-energy, diagnose, "
+                                               "deadband, loro, independent (fit/validate-energy/diagnose "
+                                               "need the campaign's runs: run campaign first or keep --work)")
+    ap.add_argument("--threads", type=int, default=1, help="NUMBA_NUM_THREADS (0: numba's default, all cores)")
+    ap.add_argument("--profile", action="store_true", help="run under cProfile and print the time by stage")
+    ap.add_argument("--work", type=Path, default=None, help="work folder (kept; default: a temporary one)")
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of the 2019 .mat files")
+    args = ap.parse_args(argv)
+    only = {s.strip() for s in args.only.split(",") if s.strip()}
+    known = {n for n, _ in commands(Path("."), args.data, set())}
+    if only - known:
+        print(f"--only: unknown {', '.join(sorted(only - known))}; choose from {', '.join(sorted(known))}",
+              file=sys.stderr)
+        return 2
+    tmp = None
+    if args.work is None:
+        tmp = tempfile.mkdtemp(prefix="omnibench-commands-")
+        work = Path(tmp)
+    else:
+        work = args.work
+        work.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.pop("NUMBA_NUM_THREADS", None)
+    if args.threads > 0:
+        env["NUMBA_NUM_THREADS"] = str(args.threads)
+    log = work / "commands.log"
+    print(f"work folder {work} (output in {log}); NUMBA_NUM_THREADS={env.get('NUMBA_NUM_THREADS', 'all')}, "
+          f"{os.cpu_count()} cores")
+    # compile the kernel first: its one-off cost is not the commands'
+    subprocess.run([sys.executable, "-c", "from omnibench.model.kernel import load_kernel; load_kernel()"],
+                   env=env, check=True)
+    rows = []
+    try:
+        for name, argvs in commands(work, args.data, only):
+            cpu, wall, code, stages = run(name, argvs, work, env, args.profile, log)
+            rows.append((name, cpu, wall, code, stages))
+            print(f"{name:<16} CPU {_mmss(cpu):>8}  wall {_mmss(wall):>8}  exit {code}", flush=True)
+            if stages:
+                print("    " + ", ".join(f"{k} {v:.1f} s" for k, v in stages.items() if v > 0.05), flush=True)
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return 1 if any(r[3] for r in rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

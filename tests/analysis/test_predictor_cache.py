@@ -1,0 +1,72 @@
+"""Predictor's prediction cache: a parameter set asked for again is not simulated again, and
+the numbers are bit for bit those of a new simulation (issue 34)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def obs(truth):
+    from omnibench.analysis.simcampaign import simulated_observations
+
+    return simulated_observations(truth, seed=3, procedures=("sweep", "forward"))
+
+
+def test_cached_predictions_equal_fresh_ones(robot, obs):
+    from omnibench.analysis.predictor import Predictor
+
+    r1, r2 = robot, robot.replace(b=0.45, C_r=0.03)
+    pred = Predictor(obs)
+    first = pred.predict([r1, r2])
+    n = pred.simulated
+    assert n > 0
+    again = pred.predict([r2, r1, r2])
+    assert pred.simulated == n  # nothing simulated: all three from the cache
+    np.testing.assert_array_equal(again, first[[1, 0, 1]])
+    fresh = Predictor(obs).predict([r2, r1])
+    np.testing.assert_array_equal(fresh, first[[1, 0]])
+    # another sub-step count is another simulation
+    pred.predict([r1], substeps=pred.substeps([r1]) + 1)
+    assert pred.simulated > n
+
+
+def test_skipped_blocks_copy_robot_zero_from_the_cache(robot, obs):
+    """same_as_first (fitting's Jacobian): blocks known not to depend on a parameter copy robot
+    0's numbers, also when robot 0 comes from the cache; such rows are not cached."""
+    from omnibench.analysis.predictor import Predictor
+
+    pred = Predictor(obs)
+    base = robot.replace(a_r=2.5)
+    shifted = base.replace(a_r=2.6)  # the roller terms do not act upside down nor going straight
+    full = Predictor(obs).predict([base, shifted])
+    skip = {k: {1} for k in pred.groups}
+    pred.predict([base])
+    n = pred.simulated
+    out = pred.predict([base, shifted], same_as_first=skip)
+    assert pred.simulated == n  # every block of `shifted` copied, robot 0 from the cache
+    np.testing.assert_array_equal(out, full)
+    out = pred.predict([shifted])  # not cached from the copied row: simulated now
+    assert pred.simulated > n
+    np.testing.assert_array_equal(out[0], full[1])
+
+
+def test_model_fitted_to_these_runs_is_not_fitted_again(robot, truth, tmp_path):
+    """diagnose starts from a model file `omnibench fit` wrote for the same runs (its [fit] table
+    carries digests of the observations and of the fitted robot); any change means a refit."""
+    from omnibench.analysis.fitting import fit, refit_needed
+    from omnibench.analysis.model_file import load_model, write_model
+    from omnibench.analysis.simcampaign import simulated_observations
+
+    obs = simulated_observations(truth, seed=5, procedures=("sweep",))
+    res = fit(robot, obs, procedures=["sweep"])
+    path = write_model(tmp_path / "model.toml", res)
+    model, info = load_model(path)
+    assert info["fitted"] == res.fitted
+    assert not refit_needed(model, obs, ["sweep"], info)
+    assert refit_needed(model.replace(m=model.m + 0.1), obs, ["sweep"], info)  # an edited model
+    other = simulated_observations(truth, seed=6, procedures=("sweep",))
+    assert refit_needed(model, other, ["sweep"], info)  # other runs
+    assert refit_needed(model, obs, ["sweep", "forward"], info)  # other procedures
+    assert refit_needed(robot, obs, ["sweep"], {})  # a plain robot file
