@@ -185,7 +185,7 @@ def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndar
 def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
     """Latency of each wheel's command (4,), s, from the enabled timing terms
     (omnibench.effects.timing): zero unless the robot or its world carries one."""
-    from omnibench.effects.timing import wheel_delays
+    from omnibench.model.timing import wheel_delays
 
     return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
 
@@ -193,7 +193,7 @@ def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
 def command_lags(robot: Robot, scenario: Scenario) -> np.ndarray:
     """Actuator time constant of each wheel (4,), s (omnibench.effects.timing): zero unless the
     robot or its world carries an actuator lag."""
-    from omnibench.effects.timing import wheel_lags
+    from omnibench.model.timing import wheel_lags
 
     return wheel_lags(term_parameters(robot, scenario))
 
@@ -203,7 +203,7 @@ def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cm
     """The duty schedules as the motors receive them: each wheel shifted by its latency, a
     change inside a physics step averaged over it, then through its actuator lag (on the
     physics grid up to t_end); unchanged, the same arrays, when no trajectory has either."""
-    from omnibench.effects.timing import delay_schedules, lag_schedules
+    from omnibench.model.timing import delay_schedules, lag_schedules
 
     delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
     lags = np.stack([command_lags(r, s) for r, s in zip(robots, scenarios)])
@@ -428,7 +428,7 @@ class Simulator:
         """`advance` with command latency: each wheel acts on the duties issued delays[j] s
         earlier. Steps in which a delayed command arrives get the step's average duty (as in
         `simulate_batch`); between arrivals the steps run in one call."""
-        from omnibench.effects.timing import step_average
+        from omnibench.model.timing import step_average
 
         self._history.append((self.t, duties))
         dt = self.dt
@@ -456,7 +456,7 @@ class Simulator:
     def _lagged(self, ubar: np.ndarray) -> np.ndarray:
         """One physics step of the actuator lag fed the step's average command `ubar`: the
         step's average lagged duty (as `lag_schedules`); advances the lag state."""
-        from omnibench.effects.timing import lag_coefficients
+        from omnibench.model.timing import lag_coefficients
 
         a, c = lag_coefficients(self._lags, self.dt)
         avg = ubar + (self._lag_y - ubar) * c

@@ -125,12 +125,13 @@ def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
 
 def _latencies(ef: Mapping[str, Mapping[str, float]], order: Sequence[int] | None) -> np.ndarray:
     """Each wheel's command latency (4,), s: command_latency tau, plus serial_command_latency
-    tau + tau_packet x (the wheel's place in the send order), plus per_wheel_latency tau_j."""
+    tau + tau_packet x (the wheel's place in the send order), plus per_wheel_latency tau_k of
+    the wheel's place k in the send order (firmware timing follows the order)."""
     order = list(order) if order is not None else [1, 2, 3, 4]
     out = np.full(4, _p(ef, "command_latency", "tau"))
     for j in range(4):
         out[j] += _p(ef, "serial_command_latency", "tau") + _p(ef, "serial_command_latency", "tau_packet") * order.index(j + 1)
-        out[j] += _p(ef, "per_wheel_latency", f"tau_{j + 1}")
+        out[j] += _p(ef, "per_wheel_latency", f"tau_{order.index(j + 1) + 1}")
     return out
 
 
