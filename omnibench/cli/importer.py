@@ -29,10 +29,15 @@ def command() -> None:
                    "the commands left relative to the time stamp). Default: the RC sketch for "
                    "inputs.mat, the square-wave sketch otherwise (for results_ground_x.mat an "
                    "assumption: the data README names no sketch; the run says so).")
+@click.option("--direction", type=click.Choice(["forward", "sideways", "rotation", "diagonal"]), default=None,
+              help="Which axis a floor run (results_ground_*.mat) drove: each wheel's duty is its sign in "
+                   "the kinematics times the logged drive value. Default: read off the data (the sign of "
+                   "each wheel's travel against the command); a log that disagrees with the given one is refused.")
 @click.option("--out", "out", default=Path("runs"), show_default=True,
               type=NonEmptyPath(path_type=Path), help="Folder that receives the run directories.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, out: Path, as_json: bool) -> None:
+def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, direction: str | None, out: Path,
+        as_json: bool) -> None:
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
     results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
     from omnibench.cli import verbosity
@@ -60,24 +65,29 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, out: Pat
             if not as_json:
                 click.echo(str(path) if quiet else f"{f}: already imported as {path} (same file): nothing changed")
             continue
-        path = import_tfm(f, out, signs=sign_map, sketch=sketch)
+        path = import_tfm(f, out, signs=sign_map, sketch=sketch, direction=direction)
         run = read_run(path)
         earlier[digest] = (path, run.metadata)
         results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": False,
                         "steps": int(len(run.steps)), "samples": int(len(run.samples)),
                         "sign_map": run.metadata["sign_map"],
-                        "mode": run.metadata.get("mode"), "firmware_timing": run.metadata.get("firmware_timing")})
+                        "mode": run.metadata.get("mode"), "firmware_timing": run.metadata.get("firmware_timing"),
+                        **({"direction": run.metadata["direction"]} if run.metadata.get("direction") else {})})
         if as_json:
             continue
         if quiet:  # the one line a script needs
             click.echo(str(path))
             continue
+        ft = run.metadata["firmware_timing"]
+        where = run.metadata.get("mode") + (f", driving {run.metadata['direction']}" if run.metadata.get("direction") else "")
+        if ft.get("sketch") == "unknown":
+            firmware = (f"firmware unknown (no sketch documented): profiled over {', '.join(ft.get('profiled_over', []))}, "
+                        f"replayed by default with {ft.get('default_sketch')}'s timing")
+        else:
+            firmware = (f"firmware {ft.get('sketch')}: commands sent in wheel order {ft['command_order']}, "
+                        f"{1000 * ft.get('packet_s', 0):.2f} ms apart, {ft.get('commands', '')}")
         click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
-                   f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']}, "
-                   f"{run.metadata.get('mode')}, commands sent in wheel order "
-                   f"{run.metadata['firmware_timing']['command_order']}"
-                   + (f"; timing {run.metadata['firmware_timing']['source']}"
-                      if "assumed" in run.metadata['firmware_timing'].get("source", "") else "") + ")")
+                   f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']}, {where}; {firmware})")
     if as_json:
         click.echo(json.dumps(results, indent=2))
 

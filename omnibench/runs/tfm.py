@@ -12,10 +12,18 @@ Two kinds of file (shared/data/omnibot-tfm/README.md):
   Becomes a ``step_response`` run: one step per constant-command segment, raw samples with
   duty = command/127, board time = millis/1000 s, encoder counts times the sign map.
 
-- ``results_ground_x.mat`` (older analysis format): robot on the floor driving forward; ``t, x,
-  m`` the raw log of the last square wave (signs already corrected). Becomes a ``step_response``
-  run with ``mode = "ground"``; the fitted gains ``Ks`` / ``fits`` / ``Ts`` are kept in run.json
+- ``results_ground_*.mat`` (older analysis format): robot on the floor; ``t, x, m`` the raw log
+  of the last square wave (wheel signs already corrected by the sketch, which negated the FR and
+  BR encoders and the FL and FR commands). Becomes a ``step_response`` run with ``mode =
+  "ground"``; the fitted gains ``Ks`` / ``fits`` / ``Ts`` are kept in run.json
   (``fitted_gains``), the 1 ms resampled ``tr``/``mr`` are not imported (not measurements).
+  ``x`` is the value of the one axis driven (the RC sketch mixes drive, strafe and turn: FL =
+  d - t - s, FR = d + t + s, RL = d - t + s, RR = d + t - s); which axis is the run's direction:
+  ``forward`` (x), ``sideways`` (y, the wheels in opposite pairs), ``rotation`` (psi) or
+  ``diagonal`` (x and y: FR and RL only). Each wheel's duty is its pattern entry times x
+  (`DIRECTIONS`, the columns of the kinematics R); the direction is read off the data (the sign
+  of each wheel's travel against x) unless given, and a log whose wheels disagree with the
+  given direction's kinematics is refused.
 - ``inputs.mat``: ``data`` (6 x N) rows = ``millis()``, drive value in [-1, 1] (command =
   trunc(127 value)), encoder counts FL, FR, BL, BR, written by the RC sketch. Becomes a
   ``random_duty`` run: wheels in the air, one step per constant command ("hold" steps of a
@@ -66,6 +74,45 @@ RC_SKETCH = {"sketch": "arduino/ardu.ino.ino", "command_order": [1, 2, 4, 3],
              "commands": "before reading the encoders", "packet_s": PACKET_S, "command_offset_s": -4 * PACKET_S,
              "channels": {"FL": "128/1", "FR": "128/2", "RL": "129/2", "RR": "129/1"}}
 SKETCHES = {"square": SQUARE_SKETCH, "rc": RC_SKETCH}
+
+
+#: a floor run's direction -> each wheel's duty per unit of the logged drive value x (FL, FR, RL,
+#: RR): the RC sketch's mixing, which is the sign pattern of the kinematics R v (design.md:
+#: sideways +y turns FL and RR back, FR and RL forward; rotation +psi turns the left wheels back)
+DIRECTIONS = {"forward": (1, 1, 1, 1), "sideways": (-1, 1, 1, -1), "rotation": (-1, 1, -1, 1),
+              "diagonal": (0, 1, 1, 0)}
+#: the body velocity direction (v1, v2, psi_dot) of each, for the check against the kinematics
+DIRECTION_VELOCITY = {"forward": (1.0, 0.0, 0.0), "sideways": (0.0, 1.0, 0.0), "rotation": (0.0, 0.0, 1.0),
+                      "diagonal": (1.0, 1.0, 0.0)}
+UNKNOWN_SKETCH = "unknown"
+
+
+def kinematic_pattern(direction: str, robot=None) -> np.ndarray:
+    """Each wheel's speed sign (-1, 0, +1) for a run in `direction`, from the robot's inverse
+    kinematics (design.md's R): what a floor log's wheels must show."""
+    from omnibench.model import default_robot
+    from omnibench.model.geometry import inverse_kinematics
+
+    rb = robot or default_robot()
+    w = inverse_kinematics(rb.L, rb.l, rb.r, rb.alpha) @ np.asarray(DIRECTION_VELOCITY[direction])
+    return np.where(np.abs(w) > 1e-9 * np.max(np.abs(w)), np.sign(w), 0.0)
+
+
+def direction_of(drive: np.ndarray, counts: np.ndarray) -> str:
+    """A floor run's direction read off the log: the sign of each wheel's travel against the
+    drive value (a wheel that travels less than a tenth of the most travelled: 0), matched to
+    `DIRECTIONS`; a one-line UserError when no direction fits."""
+    dc = np.diff(np.asarray(counts, dtype=float), axis=1)
+    corr = dc @ np.asarray(drive, dtype=float)[:-1]
+    top = float(np.max(np.abs(corr))) if corr.size else 0.0
+    if top <= 0:
+        raise UserError("no wheel turned with the command: cannot tell the run's direction (give --direction)")
+    seen = tuple(int(v) for v in np.where(np.abs(corr) > 0.1 * top, np.sign(corr), 0))
+    for name, pat in DIRECTIONS.items():
+        if seen == pat:
+            return name
+    raise UserError(f"wheels FL, FR, RL, RR travel with signs {seen} against the command: no floor direction "
+                    f"({', '.join(f'{k} {v}' for k, v in DIRECTIONS.items())}); check --signs or give --direction")
 
 
 def parse_signs(text: str) -> tuple[int, int, int, int]:
@@ -125,14 +172,19 @@ def import_tfm(
     signs: Sequence[int] | None = None,
     run_dir: Path | None = None,
     sketch: str | None = None,
+    direction: str | None = None,
 ) -> Path:
     """Convert one 2019 TFM .mat file into a run directory under `out`; returns its path.
     `sketch` ("square" or "rc") says which 2019 sketch recorded it, when you know better than
     the data README (default: the RC sketch for the RC log, the square-wave sketch otherwise;
-    for results_ground_x.mat the README names no sketch, so that one is marked assumed)."""
+    for the floor runs the README names no sketch: their sketch is recorded as unknown, replayed
+    with the square-wave sketch's timing unless profiled). `direction` (forward, sideways,
+    rotation, diagonal) says which axis a floor run drove (default: read off the data)."""
     file = Path(file)
     if sketch is not None and sketch not in SKETCHES:
         raise UserError(f"unknown sketch {sketch!r}: give one of {', '.join(SKETCHES)}")
+    if direction is not None and direction not in DIRECTIONS:
+        raise UserError(f"unknown direction {direction!r}: give one of {', '.join(DIRECTIONS)}")
     data = _load(file)
     try:
         kind = kind_of(data)
@@ -142,15 +194,25 @@ def import_tfm(
     if kind == "jacked":
         return _import_jacked(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or SQUARE_SKETCH)
     if kind == "ground":
-        other = {k: RC_SKETCH[k] for k in ("sketch", "command_order", "commands", "command_offset_s")}
-        assumed = {**SQUARE_SKETCH, "source": "assumed: the data README names no sketch for the floor "
-                                              "runs (results_ground_x.mat samples every 35 ms, between the square-wave "
-                                              "logs' 30 ms and the RC log's 44 ms); give --sketch if you know",
-                   "alternatives": [other]}
-        return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or assumed)
+        return _import_ground(file, data, Path(out), tuple(signs or JACKED_SIGNS), run_dir, given or unknown_timing(),
+                              direction)
     if kind == "rc":
         return _import_rc(file, data, Path(out), signs, run_dir, given or RC_SKETCH)
     return _import_square(file, data, Path(out), tuple(signs or RAW_SIGNS), run_dir, given or SQUARE_SKETCH)
+
+
+def unknown_timing() -> dict[str, Any]:
+    """The firmware timing of a log whose sketch is not documented (the floor runs): sketch
+    "unknown", the documented sketches it may be (`profiled_over`), replayed with the square-wave
+    sketch's timing unless the analysis profiles over the others (`alternatives`)."""
+    other = {k: RC_SKETCH[k] for k in ("sketch", "command_order", "commands", "command_offset_s")}
+    return {**SQUARE_SKETCH, "sketch": UNKNOWN_SKETCH, "default_sketch": SQUARE_SKETCH["sketch"],
+            "profiled_over": [SQUARE_SKETCH["sketch"], RC_SKETCH["sketch"]],
+            "source": "assumed for replay (the square-wave sketch's timing): the data README names no sketch "
+                      "for the floor runs (results_ground_x.mat samples every 35 ms, between the square-wave "
+                      "logs' 30 ms and the RC log's 44 ms); the analysis profiles over the documented sketches; "
+                      "give --sketch if you know",
+            "alternatives": [other]}
 
 
 def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, Any] = SQUARE_SKETCH) -> dict[str, Any]:
@@ -227,20 +289,37 @@ def _import_square(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
 
 
 def _import_ground(file: Path, data: dict[str, Any], out: Path, signs: tuple[int, ...],
-                   run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH) -> Path:
+                   run_dir: Path | None, timing: dict[str, Any] = SQUARE_SKETCH, direction: str | None = None) -> Path:
     t = np.asarray(data["t"], dtype=float).ravel()
     x = np.asarray(data["x"], dtype=float).ravel()
     m = np.asarray(data["m"], dtype=float)
     if m.shape != (4, t.size) or x.size != t.size:
         raise UserError(f"{file}: `m` should be 4 x {t.size} like `t` and `x`, is {m.shape}")
+    counts = np.round(m * COUNTS_PER_REV).astype(np.int64)
+    cmd = np.round(x * 127).astype(np.int64)
+    signed = counts * np.asarray(signs, dtype=np.int64)[:, None]
+    try:
+        seen = direction_of(cmd, signed)
+    except UserError as exc:
+        if direction is None:
+            raise UserError(f"{file}: {exc}") from None
+        seen = None
+    if direction is not None and seen is not None and seen != direction:
+        raise UserError(f"{file}: the wheels travel as in a {seen} run (signs {DIRECTIONS[seen]} against the command), "
+                        f"not as --direction {direction} ({DIRECTIONS[direction]}) says: check --signs or --direction")
+    given = direction
+    direction = direction or seen
+    pattern = DIRECTIONS[direction]
     gains = {k: np.asarray(data[k], dtype=float).tolist() for k in ("Ks", "fits", "Ts") if k in data}
     extra = {**_base_extra(file, signs, "results_ground", timing), "mode": "ground", "fitted_gains": gains,
+             "direction": direction, "wheel_pattern": list(pattern),
+             "direction_source": "given at import" if given else "read off the data",
              "fitted_gains_note": "2019 per-amplitude process-model fits: Ks wheel rev/s per unit duty, "
                                   "fits percent (NaN where not run), Ts time constants (s)"}
-    return _import_trace(file, out, run_dir, "step_response", np.round(x * 127).astype(np.int64), t,
-                         np.round(m * COUNTS_PER_REV).astype(np.int64), signs, extra, "step_response",
-                         "Robot on the floor driving forward and back (square wave of the command on "
-                         "all four motors); raw log of the last square wave of results_ground_x.mat.")
+    return _import_trace(file, out, run_dir, "step_response", cmd, t, counts, signs, extra, "step_response",
+                         f"Robot on the floor driving {direction} and back (square wave of the drive value, each "
+                         f"wheel's duty = {list(pattern)} x the drive value); raw log of the last square wave of "
+                         f"{Path(file).name}.", pattern=pattern)
 
 
 def data_signs(drive: np.ndarray, counts: np.ndarray) -> tuple[int, ...]:
@@ -269,11 +348,16 @@ def _import_rc(file: Path, data: dict[str, Any], out: Path, signs: Sequence[int]
 
 def _import_trace(file: Path, out: Path, run_dir: Path | None, procedure: str, cmd: np.ndarray,
                   t: np.ndarray, counts: np.ndarray, signs: Sequence[int], extra: dict[str, Any],
-                  step_kind: str, notes: str) -> Path:
+                  step_kind: str, notes: str, pattern: Sequence[int] = (1, 1, 1, 1)) -> Path:
     """A logged command trace (command -127..127, time s, counts 4 x N) as one step per
-    constant-command segment, raw samples with duty = command/127 and counts times the sign map."""
+    constant-command segment, raw samples with wheel j's duty = pattern_j x command/127 (a floor
+    run's direction; all four the same otherwise) and counts times the sign map."""
+    pat = [float(p) for p in pattern]
     if np.any(np.diff(t) <= 0):
         raise UserError(f"{file}: the time stamps are not increasing")
+    if isinstance(extra.get("firmware_timing"), dict) and t.size > 1:  # the loop as logged
+        extra = {**extra, "firmware_timing": {**extra["firmware_timing"],
+                                              "loop_median_s": float(np.median(np.diff(t)))}}
     sgn = np.asarray(signs, dtype=np.int64)
     edges = np.flatnonzero(np.diff(cmd) != 0) + 1
     starts = np.concatenate([[0], edges])
@@ -288,12 +372,12 @@ def _import_trace(file: Path, out: Path, run_dir: Path | None, procedure: str, c
             w.event("step_start", t=float(t[a]), step=k, duty=duty)
             for n in range(a, b):
                 w.sample({"step": k, "t": float(t[n]), "seq": n,
-                          **{f"u{j + 1}": float(cmd[n]) / 127.0 for j in range(4)},
+                          **{f"u{j + 1}": pat[j] * float(cmd[n]) / 127.0 for j in range(4)},
                           **{f"enc{j + 1}": int(sgn[j] * counts[j, n]) for j in range(4)}})
             w.event("step_end", t=float(t[b - 1]), step=k)
             w.step_complete({
                 "step": k, "kind": step_kind, "command": int(cmd[a]), "duty": duty,
-                "voltage": duty * SUPPLY_V, **{f"u{j + 1}": duty for j in range(4)},
+                "voltage": duty * SUPPLY_V, **{f"u{j + 1}": pat[j] * duty for j in range(4)},
                 "t_start": float(t[a]), "t_end": float(t[b - 1]), "n_samples": int(b - a),
             })
     return w.path
