@@ -309,6 +309,7 @@ def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
         if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
             out["command_order"] = tuple(int(w) for w in order)
         out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
+        out["sketch"] = str(ft.get("sketch") or "unknown")  # the firmware that recorded it (issue 36)
         if str(ft.get("source", "")).startswith("assumed") or ft.get("sketch") == "unknown":
             # the run's timing is a guess: the sketch assumed and the other documented timings
             out["timing_sketch"] = str(ft.get("default_sketch", ft.get("sketch", "the assumed timing")))

@@ -158,3 +158,102 @@ def trimmed(diag: Any, held: HeldOutRuns, obs: Any) -> Any:
         return diag
     model = stage_models(diag)[held.stages[held.accepted]]
     return replace(diag, selected=diag.selected[:held.accepted], extended=fit_physics(model, obs))
+
+
+# --------------------------------------------------------------------------------------------
+# Leave one firmware out (issue 36): the latencies diagnose finds are firmware timing; a model
+# fitted on the logs of one sketch must predict the logs of another with that sketch's timing.
+
+@dataclass
+class HeldOutFirmware:
+    """Per run of a documented sketch: its NRMSE per stage, each stage refitted on the logs of
+    the *other* sketches (and predicting with the run's own firmware timing). `worse`: runs the
+    last stage predicts worse than the declared model beyond TOLERANCE and the run's noise."""
+
+    stages: list[str]
+    errors: list[RunError]
+    sketch: dict[str, str]  # run -> the sketch that recorded it
+    trained_on: dict[str, list[str]]  # run -> the runs its models were fitted to
+    worse: dict[str, tuple[float, float]] = field(default_factory=dict)
+    left_out: list[str] = field(default_factory=list)  # runs of unknown firmware
+
+    def text(self) -> str:
+        if not self.errors:
+            return ("Leave-one-firmware-out: needs logs of at least two documented sketches"
+                    + (f" (unknown firmware, left out: {', '.join(self.left_out)})" if self.left_out else ""))
+        width = max(12, *(len(x) for x in self.stages))
+        lines = ["Leave-one-firmware-out NRMSE (each run predicted, with its own firmware's timing, by the model "
+                 "refitted to the logs of the other sketch(es)):",
+                 f"{'held-out run':<34} {'recorded by':<28} " + " ".join(f"{x:>{width}}" for x in self.stages)]
+        for e in self.errors:
+            lines.append(f"{e.run[:34]:<34} {self.sketch.get(e.run, '?')[:28]:<28} "
+                         + " ".join(f"{100 * e.nrmse[x]:>{width - 2}.2f} %" if x in e.nrmse else f"{'--':>{width}}"
+                                    for x in self.stages))
+        for run, train in self.trained_on.items():
+            lines.append(f"  {run}: fitted to {', '.join(train)}")
+        if self.left_out:
+            lines.append(f"  unknown firmware, in no fold: {', '.join(self.left_out)}")
+        last = self.stages[-1]
+        if self.worse:
+            lines.append(f"{last} predicts worse than the declared model (beyond {100 * TOLERANCE:.0f} % and the run's "
+                         "noise): " + ", ".join(f"{r} {100 * a:.2f} % -> {100 * b:.2f} %" for r, (a, b) in self.worse.items()))
+        else:
+            lines.append(f"the diagnosed model ({last}) predicts no log of another sketch worse than the declared "
+                         f"model (beyond {100 * TOLERANCE:.0f} % and the run's noise)")
+        return "\n".join(lines)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stages": self.stages, "tolerance": TOLERANCE, "left_out": self.left_out,
+                "worse": {r: list(v) for r, v in self.worse.items()},
+                "runs": [{"run": e.run, "sketch": self.sketch.get(e.run), "trained_on": self.trained_on.get(e.run),
+                          "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in self.errors]}
+
+
+def run_sketch(obs: Any, run: str) -> str:
+    """The sketch that recorded a run ('unknown' when no sketch is documented)."""
+    return str(obs.runs.get(run, {}).get("sketch") or "unknown")
+
+
+def leave_one_firmware_out(diag: Any, obs: Any, *, progress: Callable[[str], None] | None = None,
+                           max_nfev: int = 30) -> HeldOutFirmware:
+    """Every stage of `diag` refitted on the logs of all sketches but one, predicting that one's
+    logs (runs of unknown firmware are in no fold: their timing is not documented)."""
+    from omnibench.analysis.heldout_runs import _run_error, _run_kind, fit_physics
+
+    say = progress or (lambda s: None)
+    models = stage_models(diag)
+    labels = list(models)
+    groups: dict[str, list[str]] = {}
+    left_out = []
+    for r in obs.run_ids:
+        sk = run_sketch(obs, r)
+        if sk == "unknown":
+            left_out.append(r)
+        else:
+            groups.setdefault(sk, []).append(r)
+    out = HeldOutFirmware(labels, [], {r: run_sketch(obs, r) for r in obs.run_ids}, {}, left_out=left_out)
+    if len(groups) < 2:
+        return out
+    for k, (sketch, held) in enumerate(groups.items()):
+        train_runs = [r for s, rs in groups.items() if s != sketch for r in rs]
+        train = obs.select(runs=train_runs)
+        errs = {r: RunError(r, _run_kind(obs, r), "steady speed" if _run_kind(obs, r) == "sweep" else "wheel speed")
+                for r in held}
+        for label, model in models.items():
+            say(f"{sketch} (firmware {k + 1} of {len(groups)}): fitting {label} to {len(train_runs)} run(s) of other sketches")
+            fitted = fit_physics(model, train, max_nfev)
+            for r in held:
+                errs[r].nrmse[label], series = _run_error(fitted, obs, r)
+                if series is not None:
+                    errs[r].series[label] = series
+        for r in held:
+            out.errors.append(errs[r])
+            out.trained_on[r] = list(train_runs)
+    first, last = labels[0], labels[-1]
+    for e in out.errors:
+        a, b = e.nrmse.get(first), e.nrmse.get(last)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
+            continue
+        if b > (1 + TOLERANCE) * a and _beyond_noise(e.series.get(first), e.series.get(last)):
+            out.worse[e.run] = (a, b)
+    return out
