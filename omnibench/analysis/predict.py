@@ -15,6 +15,12 @@ returns measured and predicted signals at the sample times.
 - steady_speed (sweeps): the steady wheel speeds of the sweep table; energy (energy runs), J.
 
 NRMSE = RMS(measured - predicted) / RMS(measured), pooled over wheels and steps (0.05 = 5 %).
+
+Firmware timing (issue 36): every run is replayed with its own firmware's command timing, the
+send order and command offset `import tfm` recorded for the sketch that wrote it (the model's
+latencies follow that order: omnibench/model/timing.py). A run whose firmware is unknown (the
+2019 floor runs) is replayed with each documented sketch's timing and scored with the one that
+predicts it better, and says so (`RunPrediction.firmware`, `firmware_profiled`).
 """
 
 from __future__ import annotations
@@ -114,6 +120,18 @@ class RunPrediction:
     nrmse: dict[str, float]
     traces: dict[int, pd.DataFrame] = field(default_factory=dict)
     entries: pd.DataFrame | None = None
+    #: the firmware timing the run was replayed with (its sketch; for an unknown firmware, the
+    #: documented sketch whose timing predicted it better)
+    firmware: str = ""
+    #: unknown firmware: wheel-speed NRMSE under each documented sketch's timing (sketch -> NRMSE)
+    firmware_profiled: dict[str, float] = field(default_factory=dict)
+
+    def firmware_text(self) -> str:
+        """The firmware timing used, in words."""
+        if not self.firmware_profiled:
+            return f"firmware timing of {self.firmware}" if self.firmware else ""
+        return (f"firmware unknown: profiled over the documented sketches, chose {self.firmware} ("
+                + ", ".join(f"{k} {100 * v:.2f} %" for k, v in self.firmware_profiled.items()) + ")")
 
 
 def duty_timing(obs: Observations, run: str) -> str:
@@ -128,46 +146,73 @@ def _trace_groups(obs: Observations, run: str, proc: str) -> dict[int, pd.DataFr
     return {k[1]: obs.traces[k] for k in keys if len(obs.traces[k]) >= 3}
 
 
-def predict_runs(robot: Any, obs: Observations) -> list[RunPrediction]:
-    """Every run of `obs` replayed through `robot` (see the module docstring)."""
-    from omnibench.analysis.fitting import predict_observations
+def predict_runs(robot: Any, obs: Observations, *, profile_timing: bool = False) -> list[RunPrediction]:
+    """Every run of `obs` replayed through `robot` with its own firmware timing; with
+    `profile_timing`, a run of unknown firmware under each documented sketch's timing, the better
+    one kept (module docstring; leave-one-run-out profiles its own way, heldout_runs.py)."""
+    from dataclasses import replace
 
     out = []
     for run in obs.run_ids:
-        proc = next(p for p in ("sweep", "forward", "lateral", "energy", "step_response")
-                    if (obs.table(p)["run"] == run).any())
-        sub = obs.select(runs=[run])
-        rp = RunPrediction(run=run, procedure=proc, nrmse={})
-        pooled: dict[str, tuple[list, list]] = {}
-
-        def add(name: str, m: np.ndarray, p: np.ndarray) -> None:
-            a, b = pooled.setdefault(name, ([], []))
-            a.append(np.asarray(m, dtype=float).ravel())
-            b.append(np.asarray(p, dtype=float).ravel())
-
-        for step, tr in _trace_groups(sub, run, proc).items():
-            info = obs.runs.get(run, {})
-            rep = replay(with_supply(robot, float(info.get("V_batt", float("nan")))), tr,
-                         _scenario(sub, proc, run, step), duty_timing(obs, run),
-                         float(info.get("command_offset", 0.0) or 0.0))
-            rp.traces[step] = rep
-            add("wheel_speed", rep[[f"w{j}_meas" for j in range(1, 5)]].to_numpy(),
-                rep[[f"w{j}_pred" for j in range(1, 5)]].to_numpy())
-            add("position", rep[[f"phi{j}_meas" for j in range(1, 5)]].to_numpy(),
-                rep[[f"phi{j}_pred" for j in range(1, 5)]].to_numpy())
-            im = rep[[f"i{j}_meas" for j in range(1, 5)]].to_numpy()
-            if np.isfinite(im).any() and np.nanmax(np.abs(im)) > 0:
-                add("current", im, rep[[f"i{j}_pred" for j in range(1, 5)]].to_numpy())
-            Ib = rep["I_batt_meas"].to_numpy()
-            if np.isfinite(Ib).any() and np.nanmax(np.abs(Ib)) > 0:
-                add("battery_current", Ib, rep["I_batt_pred"].to_numpy())
-        if proc in ("sweep", "energy", "forward", "lateral"):
-            ent = predict_observations(robot, sub, [proc])
-            rp.entries = ent
-            names = {"omega": "steady_speed", "current": "steady_current", "energy": "energy", "w": "drive_speed",
-                     "forward": "displacement", "left": "displacement"}
-            for sig, g in ent.groupby("signal"):
-                add(names.get(str(sig), str(sig)), g["measured"].to_numpy(), g["predicted"].to_numpy())
-        rp.nrmse = {k: nrmse(np.concatenate(a), np.concatenate(b)) for k, (a, b) in pooled.items()}
-        out.append(rp)
+        info = obs.runs.get(run, {})
+        alts = info.get("timing_alternatives") or []
+        first = _predict_run(robot, obs, run)
+        first.firmware = str(info.get("timing_sketch") or info.get("sketch") or "")
+        if not alts or not profile_timing:
+            out.append(first)
+            continue
+        options = [first]
+        for alt in alts:
+            o = replace(obs, runs={**obs.runs, run: {**info, "command_order": alt["command_order"],
+                                                     "command_offset": alt["command_offset"]}})
+            rp = _predict_run(robot, o, run)
+            rp.firmware = str(alt.get("sketch", "?"))
+            options.append(rp)
+        key = "wheel_speed" if "wheel_speed" in first.nrmse else next(iter(first.nrmse), None)
+        scores = {o.firmware: float(o.nrmse.get(key, float("nan"))) for o in options}
+        best = min(options, key=lambda o: (not math.isfinite(scores[o.firmware]), scores[o.firmware]))
+        best.firmware_profiled = scores
+        out.append(best)
     return out
+
+
+def _predict_run(robot: Any, obs: Observations, run: str) -> RunPrediction:
+    """One run of `obs` replayed through `robot` with the timing `obs` records for it."""
+    from omnibench.analysis.fitting import predict_observations
+
+    proc = next(p for p in ("sweep", "forward", "lateral", "energy", "step_response")
+                if (obs.table(p)["run"] == run).any())
+    sub = obs.select(runs=[run])
+    rp = RunPrediction(run=run, procedure=proc, nrmse={})
+    pooled: dict[str, tuple[list, list]] = {}
+
+    def add(name: str, m: np.ndarray, p: np.ndarray) -> None:
+        a, b = pooled.setdefault(name, ([], []))
+        a.append(np.asarray(m, dtype=float).ravel())
+        b.append(np.asarray(p, dtype=float).ravel())
+
+    for step, tr in _trace_groups(sub, run, proc).items():
+        info = obs.runs.get(run, {})
+        rep = replay(with_supply(robot, float(info.get("V_batt", float("nan")))), tr,
+                     _scenario(sub, proc, run, step), duty_timing(obs, run),
+                     float(info.get("command_offset", 0.0) or 0.0))
+        rp.traces[step] = rep
+        add("wheel_speed", rep[[f"w{j}_meas" for j in range(1, 5)]].to_numpy(),
+            rep[[f"w{j}_pred" for j in range(1, 5)]].to_numpy())
+        add("position", rep[[f"phi{j}_meas" for j in range(1, 5)]].to_numpy(),
+            rep[[f"phi{j}_pred" for j in range(1, 5)]].to_numpy())
+        im = rep[[f"i{j}_meas" for j in range(1, 5)]].to_numpy()
+        if np.isfinite(im).any() and np.nanmax(np.abs(im)) > 0:
+            add("current", im, rep[[f"i{j}_pred" for j in range(1, 5)]].to_numpy())
+        Ib = rep["I_batt_meas"].to_numpy()
+        if np.isfinite(Ib).any() and np.nanmax(np.abs(Ib)) > 0:
+            add("battery_current", Ib, rep["I_batt_pred"].to_numpy())
+    if proc in ("sweep", "energy", "forward", "lateral"):
+        ent = predict_observations(robot, sub, [proc])
+        rp.entries = ent
+        names = {"omega": "steady_speed", "current": "steady_current", "energy": "energy", "w": "drive_speed",
+                 "forward": "displacement", "left": "displacement"}
+        for sig, g in ent.groupby("signal"):
+            add(names.get(str(sig), str(sig)), g["measured"].to_numpy(), g["predicted"].to_numpy())
+    rp.nrmse = {k: nrmse(np.concatenate(a), np.concatenate(b)) for k, (a, b) in pooled.items()}
+    return rp

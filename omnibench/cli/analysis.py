@@ -225,7 +225,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
                                  robot)
     loro = _baseline(robot, obs, model) if baseline else None
-    preds = predict_runs(robot, obs)
+    preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)
     if not preds:
         raise UserError("the runs hold nothing to predict")
     figs = []
@@ -243,13 +243,15 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     top = {k: (v[0] if len(v) == 1 else float(math.sqrt(sum(x * x for x in v) / len(v)))) for k, v in pooled.items()}
     if as_json:
         _echo_json({"model": str(model), "nrmse": top,
-                    "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse} for p in preds],
+                    "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse, "firmware_timing": p.firmware,
+                              **({"firmware_profiled": p.firmware_profiled} if p.firmware_profiled else {})}
+                             for p in preds],
                     "plots": figs,
                     "leave_one_run_out": None if loro is None else [
                         {"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in loro]})
         return
     for p in preds:
-        click.echo(f"{p.run} ({p.procedure}):")
+        click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "") + "):")
         for k, v in p.nrmse.items():
             click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
     for f in figs:

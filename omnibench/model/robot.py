@@ -65,7 +65,7 @@ FIELDS: dict[str, FieldSpec] = {
 # Tables a model file adds beside the robot's (who fitted what, from which runs); the robot
 # loader accepts and ignores them, so a fitted model works wherever a robot file does.
 PROVENANCE_SECTIONS = ("fit", "diagnosis")
-SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects", *PROVENANCE_SECTIONS})
+SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects", "firmware_timing", *PROVENANCE_SECTIONS})
 
 
 @dataclass(frozen=True)
@@ -111,9 +111,26 @@ class Robot:
         for key, spec in FIELDS.items():
             value = getattr(self, key)
             out.setdefault(spec.section, {})[key] = list(value) if spec.kind == "vector4" else value
-        if self.effects:
-            out["effects"] = {k: dict(v) for k, v in self.effects.items()}
+        if self.own_effects:
+            out["effects"] = {k: dict(v) for k, v in self.own_effects.items()}
+        if self.firmware_timing:  # the firmware's command timing, apart from the robot's effects (issue 36)
+            out["firmware_timing"] = {k: dict(v) for k, v in self.firmware_timing.items()}
         return out
+
+    @property
+    def firmware_timing(self) -> dict[str, Mapping[str, float]]:
+        """The effects that are the recording firmware's command timing (latencies, in the send
+        order of the run they are applied to: omnibench/model/timing.py), not the robot's."""
+        from omnibench.model.timing import FIRMWARE_TERMS
+
+        return {k: v for k, v in self.effects.items() if k in FIRMWARE_TERMS}
+
+    @property
+    def own_effects(self) -> dict[str, Mapping[str, float]]:
+        """The robot's own effects (everything but the firmware timing)."""
+        from omnibench.model.timing import FIRMWARE_TERMS
+
+        return {k: v for k, v in self.effects.items() if k not in FIRMWARE_TERMS}
 
 
 def _line_of(text: str, section: str | None, key: str) -> int | None:
@@ -209,7 +226,7 @@ def robot_from_dict(data: Mapping[str, Any], *, path: str = "<robot>", text: str
         if key not in SECTIONS:
             hint = difflib.get_close_matches(key, SECTIONS, n=1)
             reader.fail(None, key, "unknown section" + (f" (did you mean [{hint[0]}]?)" if hint else f"; sections are {', '.join(SECTIONS)}"))
-        if key == "effects" or key in PROVENANCE_SECTIONS:
+        if key in ("effects", "firmware_timing") or key in PROVENANCE_SECTIONS:
             continue
         if not isinstance(raw, dict):
             reader.fail(None, key, f"[{key}] must be a table")
@@ -228,6 +245,14 @@ def robot_from_dict(data: Mapping[str, Any], *, path: str = "<robot>", text: str
         where = ", ".join(f"[{FIELDS[k].section}] {k}" for k in missing)
         raise UserError(f"{path}: missing values: {where}")
     effects = reader.effects(data.get("effects", {}))
+    firmware = reader.effects(data.get("firmware_timing", {}))  # [firmware_timing.<term>]: latencies only
+    from omnibench.model.timing import FIRMWARE_TERMS
+
+    for term in firmware:
+        if term not in FIRMWARE_TERMS:
+            reader.fail("firmware_timing", term, f"not firmware timing (it belongs in [effects]); "
+                        f"[firmware_timing] takes {', '.join(FIRMWARE_TERMS)}")
+    effects.update(firmware)
     name = data.get("name", Path(path).stem)
     return Robot(name=str(name), effects=effects, **values)
 
