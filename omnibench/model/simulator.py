@@ -184,14 +184,14 @@ def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndar
 
 def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
     """Latency of each wheel's command (4,), s, from the enabled timing terms
-    (omnibench.effects.timing): zero unless the robot or its world carries one."""
+    (omnibench.model.timing): zero unless the robot or its world carries one."""
     from omnibench.model.timing import wheel_delays
 
     return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
 
 
 def command_lags(robot: Robot, scenario: Scenario) -> np.ndarray:
-    """Actuator time constant of each wheel (4,), s (omnibench.effects.timing): zero unless the
+    """Actuator time constant of each wheel (4,), s (omnibench.model.timing): zero unless the
     robot or its world carries an actuator lag."""
     from omnibench.model.timing import wheel_lags
 
