@@ -145,3 +145,33 @@ def test_roller_friction_is_what_in_air_and_forward_runs_cannot_see(worlds, robo
     assert fitted.a_r == pytest.approx(truth.a_r, rel=0.15) and fitted.b_r == pytest.approx(truth.b_r, rel=0.15)
     for d, p in preds.items():
         assert p.nrmse["wheel_speed"] < 0.05, (d, p.nrmse)
+
+
+def test_a_sideways_run_replayed_with_one_duty_for_every_wheel_is_worse_than_zero(worlds):
+    """Why a sideways floor run scored ~146 % before: replayed with every wheel at the drive
+    value (a forward run's duties) the model turns FL and RR against the measured wheels, an
+    NRMSE above 100 % (predicting zero gives 100 %); with the kinematics' pattern, about 1 %."""
+    from omnibench.analysis.observations import Observations
+    from omnibench.analysis.predict import predict_runs
+
+    truth, runs = worlds["same_rollers"]
+    for d in ("sideways", "rotation"):
+        obs = Observations.from_runs([runs[f"sim_ground_{d}"]], truth)
+        assert predict_runs(truth, obs)[0].nrmse["wheel_speed"] < 0.03
+        for tr in obs.traces.values():
+            for j in range(1, 5):
+                tr[f"u{j}"] = tr["u2"].to_numpy()  # FR's duty is the drive value in every direction
+        assert predict_runs(truth, obs)[0].nrmse["wheel_speed"] > 1.0
+
+
+@pytest.mark.skipif(not Path("/work/shared/data/omnibot-tfm/results_ground_x.mat").is_file()
+                    and not (Path(__file__).resolve().parents[3] / "shared/data/omnibot-tfm").is_dir(),
+                    reason="2019 TFM data not available")
+def test_the_real_2019_floor_run_reads_as_forward_with_its_corrected_signs(tmp_path):
+    """results_ground_x.mat: the sketch had already corrected the signs (map +1), and every wheel
+    travels with the drive value: a forward run by the kinematics."""
+    data = next((p / "shared/data/omnibot-tfm" for p in Path(__file__).resolve().parents
+                 if (p / "shared/data/omnibot-tfm").is_dir()), Path("/work/shared/data/omnibot-tfm"))
+    run = read_run(import_tfm(data / "results_ground_x.mat", tmp_path))
+    assert run.metadata["direction"] == "forward" and run.metadata["sign_map"] == [1, 1, 1, 1]
+    assert run.metadata["wheel_pattern"] == list(kinematic_pattern("forward"))
