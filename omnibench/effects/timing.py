@@ -26,10 +26,24 @@ the run's send order (omnibench/model/timing.py, where the schedule arithmetic l
 from __future__ import annotations
 
 from omnibench.model.terms import Param, Term, register
+
 # the schedule arithmetic lives in the model (issue 35); re-exported for the effect's users
 from omnibench.model.timing import (  # noqa: F401
-    FIRMWARE_TERMS, MAX_LAG, MAX_LATENCY, PACKET_9600, ROBOT_TIMING_TERMS, TIMING_TERMS, _integral,
-    delay_schedules, lag_coefficients, lag_schedules, slots, step_average, wheel_delays, wheel_lags)
+    FIRMWARE_TERMS,
+    MAX_LAG,
+    MAX_LATENCY,
+    PACKET_9600,
+    ROBOT_TIMING_TERMS,
+    TIMING_TERMS,
+    _integral,
+    delay_schedules,
+    lag_coefficients,
+    lag_schedules,
+    slots,
+    step_average,
+    wheel_delays,
+    wheel_lags,
+)
 
 command_latency = register(Term(
     name="command_latency",

@@ -87,10 +87,10 @@ def test_cli_refuses_a_floor_log_against_its_declared_direction(worlds, tmp_path
     _, runs = worlds["same_rollers"]
     src = read_run(runs["sim_ground_sideways"]).metadata["source_file"]
     exe = [sys.executable, "-m", "omnibench", "import", "tfm", src, "--out", str(tmp_path)]
-    bad = subprocess.run(exe + ["--direction", "forward"], capture_output=True, text=True, timeout=120)
+    bad = subprocess.run(exe + ["--direction", "forward"], check=False, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
     assert "sideways" in bad.stderr and "--direction" in bad.stderr
-    ok = subprocess.run(exe + ["--direction", "sideways"], capture_output=True, text=True, timeout=120)
+    ok = subprocess.run(exe + ["--direction", "sideways"], check=False, capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0, ok.stderr
     assert "driving sideways" in ok.stdout and "firmware unknown" in ok.stdout
 

@@ -182,8 +182,8 @@ class HeldOutFirmware:
             return ("Leave-one-firmware-out: needs logs of at least two documented sketches"
                     + (f" (unknown firmware, left out: {', '.join(self.left_out)})" if self.left_out else ""))
         width = max(12, *(len(x) for x in self.stages))
-        lines = ["Leave-one-firmware-out NRMSE (each run predicted, with its own firmware's timing, by the model "
-                 "refitted to the logs of the other sketch(es)):",
+        lines = [("Leave-one-firmware-out NRMSE (each run predicted, with its own firmware's timing, by the model "
+                  "refitted to the logs of the other sketch(es)):"),
                  f"{'held-out run':<34} {'recorded by':<28} " + " ".join(f"{x:>{width}}" for x in self.stages)]
         for e in self.errors:
             lines.append(f"{e.run[:34]:<34} {self.sketch.get(e.run, '?')[:28]:<28} "
