@@ -104,3 +104,28 @@ def test_unknown_firmware_is_profiled_over_the_documented_sketches_and_named(rob
     sq = predict_runs(robot, Observations.from_runs([import_tfm(DATA / "inputs.mat", tmp_path)], robot),
                       profile_timing=True)[0]
     assert sq.firmware == RC_SKETCH["sketch"] and not sq.firmware_profiled
+
+
+@pytest.mark.skipif(not (DATA / "inputs.mat").is_file(), reason="2019 TFM data not available")
+def test_leave_one_firmware_out_fits_on_the_other_sketch_only(robot, tmp_path):
+    """Folds by sketch: the square-wave sketch's logs are predicted from the RC log and the RC
+    log from the square-wave sketch's logs; the floor run (unknown firmware) is in no fold."""
+    import types
+
+    from omnibench.analysis.diagnosis.loro import leave_one_firmware_out, run_sketch
+    from omnibench.analysis.observations import Observations
+    from omnibench.runs.tfm import RC_SKETCH, SQUARE_SKETCH, import_tfm
+
+    for f in ("results_jacked.mat", "square_small.mat", "inputs.mat", "results_ground_x.mat"):
+        import_tfm(DATA / f, tmp_path)
+    obs = Observations.from_runs([tmp_path], robot)
+    diag = types.SimpleNamespace(declared=robot, base_fit=types.SimpleNamespace(free=["a", "b"]), selected=[],
+                                 final_fit=types.SimpleNamespace(robot=robot, free=["a", "b"]))
+    h = leave_one_firmware_out(diag, obs, max_nfev=10)
+    assert len(h.errors) == 3 and len(h.left_out) == 1 and run_sketch(obs, h.left_out[0]) == "unknown"
+    for e in h.errors:
+        own = h.sketch[e.run]
+        assert own in (SQUARE_SKETCH["sketch"], RC_SKETCH["sketch"])
+        assert h.trained_on[e.run] and all(run_sketch(obs, r) not in (own, "unknown") for r in h.trained_on[e.run])
+        assert 0 < e.nrmse["declared"] < 1
+    assert not h.worse and "no log of another sketch worse" in h.text()
