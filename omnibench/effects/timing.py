@@ -100,9 +100,9 @@ def library_effects() -> dict:
     """The timing candidates as diagnosis sees them (omnibench.effects.library.Effect)."""
     from omnibench.effects.library import Effect
 
-    order = {"per_wheel_latency": "log the command's arrival at each driver (or swap the send order in "
-                                  "the firmware): a serial pattern moves with the order, a wheel's own "
-                                  "latency does not"}
+    order = {"per_wheel_latency": "log the command's arrival at each driver: a serial link adds one packet "
+                                  "time per place in the send order, per-packet latencies may step unevenly "
+                                  "(both follow the send order: they are the firmware's timing)"}
     return {e.name: e for e in (
         Effect("command_latency", fit=("tau",), example={"tau": 0.02}, start={"tau": 0.005},
                procedures=("step_response",), variable="time since duty change",
