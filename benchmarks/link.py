@@ -21,7 +21,7 @@ from pathlib import Path
 
 from omnibench.link.board import Board
 from omnibench.link.codec import Codec
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 RATES = (200, 500, 1000)
 BAUD = 115200

@@ -46,18 +46,9 @@ import pandas as pd
 from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.errors import UserError
 from omnibench.model.context import GRAVITY
+from omnibench.procedures import RUN_PROCEDURES  # run.json `procedure` -> Observations table
 
 PROCEDURES = ("sweep", "forward", "lateral", "energy", "step_response")
-
-#: run.json `procedure` -> Observations table
-RUN_PROCEDURES = {
-    "upside_down_sweep": "sweep",
-    "forward_runs": "forward",
-    "lateral_runs": "lateral",
-    "energy_trajectories": "energy",
-    "step_response": "step_response",
-    "random_duty": "step_response",  # a logged command trace replayed whole, like a step response
-}
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
                  "current", "current_se", "n", "steady", "time", "V_batt"]

@@ -39,7 +39,7 @@ _FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": 
 
 
 def _plan(proc: str, robot: Any, files: Mapping[str, str | Path] | None):
-    from omnibench.bench.procedure import default_procedure_path, load_plan
+    from omnibench.procedures import default_procedure_path, load_plan
 
     path = (files or {}).get(proc) or default_procedure_path(_FILE_OF[proc])
     return load_plan(path, robot, expect=_FILE_OF[proc])

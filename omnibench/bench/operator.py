@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from omnibench.bench.procedure import Step, World
+from omnibench.procedures import Step, World
 from omnibench.errors import UserError
 from omnibench.files import read_toml
 from omnibench.model.units import to_si
@@ -46,9 +46,9 @@ def actions_for(current: World | None, target: World) -> list[Action]:
             acts.append(Action("flip", "Put the robot on the ground, wheels down", target))
     if current is None or current.wheel_set != target.wheel_set or current.wheel_mass != target.wheel_mass:
         if target.wheel_mass is not None:
-            from omnibench.bench.procedure import _fmt_masses
+            from omnibench.procedures import format_masses
 
-            what = f"wheel set {target.wheel_set!r} ({_fmt_masses(target.wheel_mass)})"
+            what = f"wheel set {target.wheel_set!r} ({format_masses(target.wheel_mass)})"
         else:
             what = f"wheel set {target.wheel_set!r}"
         acts.append(Action("wheels", f"Mount {what} on all four axles", target))

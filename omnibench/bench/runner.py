@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
-from omnibench.bench.procedure import Plan, Step, World
+from omnibench.procedures import Plan, Step, World
 from omnibench.errors import BoardError, Terminated, UserError  # noqa: F401 - Terminated re-exported
 
 #: A tape reading this many no-slip tolerances away from the encoders is questioned at once.

@@ -17,7 +17,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from omnibench.bench.procedure import (
+from omnibench.procedures import (
+    LABELS,
     Plan,
     default_procedure_path,
     duty_limit,
@@ -26,13 +27,6 @@ from omnibench.bench.procedure import (
     step_distance_bound,
 )
 from omnibench.errors import UserError
-
-LABELS = {
-    "upside_down_sweep": "III.i upside-down sweep",
-    "forward_runs": "III.ii forward/backward runs",
-    "lateral_runs": "III.iii lateral runs",
-    "energy_trajectories": "IV energy trajectories",
-}
 
 
 def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:

@@ -54,7 +54,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
 
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
-    from omnibench.bench.campaign import parse_stages, run_campaign
+    from omnibench.campaign.run import parse_stages, run_campaign
     from omnibench.cli.stages import run_analysis
 
     from omnibench.cli import verbosity
@@ -79,7 +79,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         stage_options["diagnose"] = ("--candidates", ",".join(_candidates(candidates) or []))
     if adaptive:
         from omnibench.analysis.design.space import Limits
-        from omnibench.bench.adaptive import run_adaptive_campaign
+        from omnibench.campaign.adaptive import run_adaptive_campaign
 
         if resume:
             raise UserError("--adaptive does not resume a campaign yet: start it in a new --out")

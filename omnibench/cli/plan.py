@@ -91,7 +91,7 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.model_file import load_model
     from omnibench.analysis.observations import Observations
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     from omnibench.cli.params import check_out_folder

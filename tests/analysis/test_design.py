@@ -11,8 +11,8 @@ from omnibench.analysis.design.space import Costs, Limits, Space, build_space
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.simcampaign import simulated_observations
-from omnibench.bench.campaign import procedure_files
-from omnibench.bench.procedure import load_plan
+from omnibench.campaign.run import procedure_files
+from omnibench.procedures import load_plan
 from omnibench.errors import UserError
 from omnibench.model import default_robot
 

@@ -164,7 +164,7 @@ def test_wheels_that_stick_in_a_lateral_run_are_left_out_of_the_fit_and_of_the_p
     from omnibench.analysis.design.information import candidate_information
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.fitting import MIN_GROUND_SPEED_WIDTHS
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from omnibench.bench.procedure import (
+from omnibench.procedures import (
     PROCEDURES,
     body_velocity_duties,
     default_procedure_path,

@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from fakeboard import FakeBoard  # noqa: E402
 
-from omnibench.bench.procedure import load_plan  # noqa: E402
+from omnibench.procedures import load_plan  # noqa: E402
 from omnibench.bench.runner import steady_state  # noqa: E402
 from omnibench.bench.session import _run_on_board, load_robot_file  # noqa: E402
 from omnibench.model import default_robot  # noqa: E402

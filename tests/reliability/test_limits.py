@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from omnibench import locks
-from omnibench.bench.procedure import check_limits, duty_limit, load_plan, stall_current
+from omnibench.procedures import check_limits, duty_limit, load_plan, stall_current
 from omnibench.errors import UserError
 from omnibench.model import default_robot
 from omnibench.runs import read_run

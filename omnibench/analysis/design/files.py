@@ -22,7 +22,7 @@ import tomli_w
 from omnibench.analysis.design.planner import Unit
 from omnibench.analysis.design.space import (FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space,
                                               build_space, sweep_hold)
-from omnibench.bench.procedure import load_plan
+from omnibench.procedures import load_plan
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}
 COMMAND_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}

@@ -45,7 +45,7 @@ from omnibench.analysis.design.space import (
     ACTION_WORDS, Candidate, Costs, Space, sequence_actions,
 )
 from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, param_value
-from omnibench.bench.procedure import World
+from omnibench.procedures import World
 from omnibench.errors import UserError
 
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from omnibench.bench.procedure import World, body_velocity_duties, stall_current
+from omnibench.procedures import World, body_velocity_duties, stall_current
 
 #: Operator actions and their default cost in seconds of the operator's (and robot's) time.
 DEFAULT_ACTION_COSTS = {"flip": 60.0, "wheels": 180.0, "payload": 20.0, "measure": 30.0}

@@ -18,17 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from omnibench import __version__
-from omnibench.bench.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
-from omnibench.bench.procedure import PROCEDURES, default_procedure_path
+from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
+from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 from omnibench.errors import Terminated, UserError
 from omnibench.locks import holds_out_folder
 
-COMMAND_OF = {
-    "upside_down_sweep": "sweep",
-    "forward_runs": "forward",
-    "lateral_runs": "lateral",
-    "energy_trajectories": "energy",
-}
 ANALYSIS = ("fit", "validate-energy", "diagnose")
 #: runs the analysis stages: (runs_dir, out, robot_file, echo, stages, *, into=None, earlier=None) -> results by
 #: stage name; `into` receives each stage as it ends, `earlier` holds an interrupted campaign's stages to keep
@@ -90,7 +84,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     ("status": "interrupted", "stopped_at"), and the KeyboardInterrupt goes on to the caller.
     With `resume`, analysis stages that finished before the interruption are kept when no run
     changed since."""
-    from omnibench.bench.procedure import load_plan
+    from omnibench.procedures import load_plan
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
 
     out = Path(out)
@@ -169,7 +163,7 @@ def _interrupted_analysis(out: Path) -> dict[str, Any] | None:
 def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Callable[[str], None], *,
             summary: bool) -> None:
     """Plots, report.md, report.html and campaign.json for `results` (complete or interrupted)."""
-    from omnibench.bench.html_report import write_html
+    from omnibench.campaign.html_report import write_html
     from omnibench.runs.store import json_ready
 
     try:
@@ -186,7 +180,7 @@ def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Cal
     (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
                                        encoding="utf-8")
     if summary:
-        from omnibench.bench.summary import campaign_summary
+        from omnibench.campaign.summary import campaign_summary
 
         for line in campaign_summary(results):
             echo(line)
@@ -469,7 +463,7 @@ def _save(fig: Any, path: Path, plt: Any) -> str:
 # --------------------------------------------------------------------------- report
 def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
     """report.md: what was run, what it found, what each analysis stage said."""
-    from omnibench.bench.session import LABELS, summary_lines
+    from omnibench.bench.session import summary_lines
     from omnibench.runs import read_run
 
     ports = sorted({str(read_run(r["run"]).metadata.get("port")) for r in results["procedures"].values()

@@ -38,8 +38,8 @@ from typing import Any, Mapping
 from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files, write_procedures
 from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
-from omnibench.bench.campaign import Analyse
-from omnibench.bench.procedure import World
+from omnibench.campaign.run import Analyse
+from omnibench.procedures import World
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
 
@@ -495,7 +495,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
-    from omnibench.bench.campaign import make_plots, procedure_files, write_report
+    from omnibench.campaign.run import make_plots, procedure_files, write_report
     from omnibench.bench.session import load_robot_file, run_command
     from omnibench.runs.store import json_ready
 
