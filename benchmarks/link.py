@@ -19,9 +19,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from omnibench.link.board import Board
-from omnibench.link.codec import Codec
-from tests.simserver import spawn_server
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (simserver.py)
+
+from omnibench.link.board import Board  # noqa: E402
+from omnibench.link.codec import Codec  # noqa: E402
+from simserver import spawn_server  # noqa: E402
 
 RATES = (200, 500, 1000)
 BAUD = 115200

@@ -32,7 +32,7 @@ sys.path.insert(0, str(HERE.parent / "tests"))
 from omnibench.link.codec import Codec  # noqa: E402
 from omnibench.link.fuzz import fuzz_frames, predicted_rate, spec_with_width  # noqa: E402
 from omnibench.runs import read_run  # noqa: E402
-from tests.simserver import HostStalls, spawn_server  # noqa: E402
+from simserver import HostStalls, spawn_server  # noqa: E402
 from reliability.test_stale_samples import check_sweep, run_sweep  # noqa: E402
 
 

@@ -24,6 +24,7 @@ from omnibench.analysis.observations import (
 from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
+from omnibench.procedures import REGISTRY
 from omnibench.model.simulator import simulate_batch
 
 TELEMETRY_DT = 0.01  # s
@@ -34,8 +35,7 @@ VOLTAGE_NOISE = 0.005  # V
 BATTERY_CURRENT_NOISE = 0.01  # A
 SWEEP_HOLD = 0.6  # s held per sweep level (the model is steady after ~30 ms upside down)
 
-_FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs",
-            "energy": "energy_trajectories"}
+_FILE_OF = {p.observes: p.name for p in REGISTRY}  # Observations table -> procedure
 
 
 def _plan(proc: str, robot: Any, files: Mapping[str, str | Path] | None):
