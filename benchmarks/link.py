@@ -21,9 +21,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (simserver.py)
 
-from omnibench.link.board import Board  # noqa: E402
-from omnibench.link.codec import Codec  # noqa: E402
-from simserver import spawn_server  # noqa: E402
+from simserver import spawn_server
+
+from omnibench.link.board import Board
+from omnibench.link.codec import Codec
 
 RATES = (200, 500, 1000)
 BAUD = 115200

@@ -13,8 +13,9 @@ training traces' wheel speeds.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class RunError:
         options += [(alt.get(label), sketch, self.alt_series.get(sketch, {}).get(label))
                     for sketch, alt in self.alternatives.items()]
         options = [o for o in options if o[0] is not None and np.isfinite(o[0])]
-        return min(options, key=lambda o: o[0]) if options else (None, self.assumed_sketch, None)
+        return min(options, key=lambda o: o[0]) if options else (None, self.assumed_sketch, None)  # type: ignore[arg-type, return-value]
 
 
 def _run_kind(obs: Observations, run: str) -> str:
@@ -91,7 +92,7 @@ def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np
     if reps:
         series = tuple(np.concatenate([r[[f"w{j}_{x}" for j in range(1, 5)]].to_numpy() for r in reps])
                        for x in ("meas", "pred"))
-    return float(pred.nrmse.get("wheel_speed", float("nan"))), series
+    return float(pred.nrmse.get("wheel_speed", float("nan"))), series  # type: ignore[return-value]
 
 
 def _sweep_measures(name: str, sweep: Any = None) -> bool:

@@ -36,9 +36,10 @@ noise of the simulated board) for tests and benchmarks.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -261,10 +262,6 @@ def _trace(samples: pd.DataFrame, t0: float | None, cpr: float, relative: bool =
     for c in ("i1", "i2", "i3", "i4", "V_batt", "I_batt"):
         out[c] = s[c].to_numpy(dtype=float)
     return out.reset_index(drop=True)
-
-
-def _col(steps: pd.DataFrame, name: str) -> pd.Series:
-    return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
 
 
 def run_key(run: Any) -> str:

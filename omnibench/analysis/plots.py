@@ -16,11 +16,11 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-from omnibench.errors import UserError  # noqa: E402
+from omnibench.errors import UserError
 
 
 def _out(folder: str | Path, name: str) -> Path:
@@ -34,8 +34,8 @@ def _out(folder: str | Path, name: str) -> Path:
 
 def plot_sweep_fit(robot: Any, obs: Any, residuals: pd.DataFrame, folder: str | Path, name: str = "sweep_fit.png") -> Path:
     """Steady wheel speed vs duty: measured points and the model's steady speeds on a fine duty grid."""
-    from omnibench.analysis.observations import Observations
     from omnibench.analysis.fitting import predict_observations
+    from omnibench.analysis.observations import Observations
 
     sw = obs.sweep
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True, sharey=True)

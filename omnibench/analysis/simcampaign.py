@@ -11,21 +11,28 @@ Telemetry at 100 Hz; physics at 1 ms.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import (
-    DEFAULT_TAPE_SE, ENERGY_COLUMNS, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, TRACE_COLUMNS,
-    Observations, timed_row,
+    DEFAULT_TAPE_SE,
+    ENERGY_COLUMNS,
+    RUN_COLUMNS,
+    STEADY_AVERAGE,
+    SWEEP_COLUMNS,
+    TRACE_COLUMNS,
+    Observations,
+    timed_row,
 )
 from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
-from omnibench.procedures import REGISTRY
 from omnibench.model.simulator import simulate_batch
+from omnibench.procedures import REGISTRY
 
 TELEMETRY_DT = 0.01  # s
 PHYSICS_DT = 1e-3  # s

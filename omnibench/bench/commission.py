@@ -100,7 +100,7 @@ def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = 
         w = [x.lower() for x in WHEELS].index(wheel)
         sign = 1 if way == "forward" else -1
         if motor[w] is not None:
-            problems.append(f"{wheel.upper()} named for channels {motor[w][0]} and {ch + 1}")
+            problems.append(f"{wheel.upper()} named for channels {motor[w][0]} and {ch + 1}")  # type: ignore[index]
         motor[w] = (ch + 1, sign)
         counts = j["counts"]
         k = int(np.argmax(np.abs(counts)))
@@ -136,7 +136,7 @@ def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = 
                   motor_current_sensor=cur_ok,
                   battery_current_sensor=bool(getattr(board, "has_battery_current", False)),
                   battery_voltage_V=round(v, 3),  # type: ignore[arg-type]
-                  date=dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
+                  date=dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
 
 
 def firmware_fixes(wiring: Wiring) -> list[str]:

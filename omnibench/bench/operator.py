@@ -21,10 +21,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from omnibench.procedures import Step, World
 from omnibench.errors import UserError
 from omnibench.files import read_toml
 from omnibench.model.units import to_si
+from omnibench.procedures import Step, World
 
 
 @dataclass(frozen=True)
@@ -234,7 +234,7 @@ class AnswersOperator:
                 self._value(s)
 
     def _value(self, step: Step) -> Any:
-        raw = self.data[step.measure][str(step.index)]
+        raw = self.data[step.measure][str(step.index)]  # type: ignore[index]
         where = f"{self.path}: [{step.measure}] {step.index}"
         if step.measure == "distance":
             return parse_distance(raw, where)

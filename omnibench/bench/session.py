@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from omnibench.errors import UserError
 from omnibench.procedures import (
     LABELS,
     Plan,
@@ -26,7 +27,6 @@ from omnibench.procedures import (
     stall_current,
     step_distance_bound,
 )
-from omnibench.errors import UserError
 
 
 def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
@@ -357,13 +357,14 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}{need}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
-    status, reason = "failed", "unknown"
+    status: str = "failed"
+    reason: str | None = "unknown"
     disk_full = False
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
     lock.__enter__()
     log = RunLog(writer.path)  # log.txt: what the terminal said
     log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
-    restore: Callable[[], Any] = lambda: None
+    restore: Callable[[], Any] = lambda: None  # noqa: E731 - until SIGTERM is caught, nothing to restore
     try:
         restore = sigterm_as_interrupt()
         if resume is not None:  # a new run claimed its reserve as it was created

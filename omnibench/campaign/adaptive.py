@@ -30,18 +30,18 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files, write_procedures
 from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
 from omnibench.campaign.run import Analyse
-from omnibench.procedures import World
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
+from omnibench.procedures import World
 
 MAX_ROUNDS = 10
 PILOT = 0.5
@@ -139,7 +139,7 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
     return min(zip(options, repeats), key=lambda o: cost_of(o[0]) * o[1])[0]
 
 
-def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
+def pilot(units: list[Unit], have: set[str], required: Sequence[Any] = ()) -> list[Unit]:
     """For procedures without data yet: their `required` candidates (the diagnostic floor) alone
     if the plan has any, else all their units at half the repetitions (a subset of the steps may
     not separate the targets the whole does). The pilot's fit measures the noise; the rest is
@@ -495,8 +495,8 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
-    from omnibench.campaign.run import make_plots, procedure_files, write_report
     from omnibench.bench.session import load_robot_file, run_command
+    from omnibench.campaign.run import make_plots, procedure_files, write_report
     from omnibench.runs.store import json_ready
 
     out = Path(out)

@@ -19,9 +19,9 @@ from typing import Any
 
 from omnibench import __version__
 from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
-from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 from omnibench.errors import Terminated, UserError
 from omnibench.locks import holds_out_folder
+from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 
 ANALYSIS = ("fit", "validate-energy", "diagnose")
 #: runs the analysis stages: (runs_dir, out, robot_file, echo, stages, *, into=None, earlier=None) -> results by
@@ -84,8 +84,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     ("status": "interrupted", "stopped_at"), and the KeyboardInterrupt goes on to the caller.
     With `resume`, analysis stages that finished before the interruption are kept when no run
     changed since."""
-    from omnibench.procedures import load_plan
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
+    from omnibench.procedures import load_plan
 
     out = Path(out)
     files = procedure_files(procedures_dir)
@@ -116,7 +116,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
             (prior, status), = earlier.get(p, [(None, None)])
             if status == "complete":
                 echo(f"== {COMMAND_OF[p]}: kept (complete) {prior}")
-                results["procedures"][p] = completed_run_summary(p, prior, echo)
+                results["procedures"][p] = completed_run_summary(p, prior, echo)  # type: ignore[arg-type]
                 continue
             earlier_analysis = None  # the runs change: every analysis stage runs again
             where = COMMAND_OF[p]
@@ -168,7 +168,7 @@ def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Cal
 
     try:
         results["plots"] = make_plots(results, out, robot)
-    except Exception as exc:  # noqa: BLE001 - an interrupted campaign's partial data must not lose the report
+    except Exception as exc:  # an interrupted campaign's partial data must not lose the report
         if results.get("status") != "interrupted":
             raise
         results["plots"] = {}

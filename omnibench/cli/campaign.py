@@ -9,7 +9,6 @@ from pathlib import Path
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.cli.plan import design_options
 from omnibench.errors import UserError
 
@@ -55,9 +54,8 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
     from omnibench.campaign.run import parse_stages, run_campaign
-    from omnibench.cli.stages import run_analysis
-
     from omnibench.cli import verbosity
+    from omnibench.cli.stages import run_analysis
 
     level = verbosity()
 

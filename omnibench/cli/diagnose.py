@@ -10,7 +10,6 @@ from pathlib import Path
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.errors import UserError
 
 
@@ -72,7 +71,6 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
     from omnibench.analysis.diagnosis import diagnose
     from omnibench.analysis.diagnosis.report import write_model, write_plots
     from omnibench.analysis.observations import Observations
-
     from omnibench.cli.params import check_out_folder
     from omnibench.runs.check import check_output, checked_runs
 
@@ -127,7 +125,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
 
 def _jsonable(x: object) -> object:
     try:
-        v = float(x)  # numpy scalars
+        v = float(x)  # type: ignore[arg-type]  # numpy scalars
     except (TypeError, ValueError):
         return str(x)
     return v if math.isfinite(v) else None

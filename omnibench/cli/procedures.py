@@ -15,7 +15,6 @@ from typing import Any
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.procedures import REGISTRY
 
 #: command -> procedure, and the command's help, from the procedures' registry

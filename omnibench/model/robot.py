@@ -9,9 +9,10 @@ import dataclasses
 import difflib
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, NoReturn
 
 from omnibench.errors import UserError
 from omnibench.files import read_toml
@@ -135,7 +136,7 @@ class _Reader:
     def __init__(self, path: str, text: str) -> None:
         self.path, self.text = path, text
 
-    def fail(self, section: str | None, key: str, message: str) -> None:
+    def fail(self, section: str | None, key: str, message: str) -> NoReturn:
         line = _line_of(self.text, section, key)
         where = f"{self.path}:{line}" if line else self.path
         where_key = f"[{section}] {key}" if section else key

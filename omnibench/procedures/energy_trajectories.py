@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,8 @@ from omnibench.procedures.plan import (
     top_keys,
 )
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 TRAJECTORY_KINDS = ("square", "circle", "figure_eight", "spin", "segments")
 
@@ -69,7 +71,7 @@ def trajectory_segments(pf: ProcedureFile, tr: dict[str, Any]) -> list[tuple[flo
     return out
 
 
-def expand(pf: ProcedureFile, robot: Any) -> Plan:
+def expand(pf: ProcedureFile, robot: Robot) -> Plan:
     """IV: named open-loop trajectories on the ground, duties from the body velocities through
     the inverse kinematics; the battery current is logged for the energy balance."""
     top_keys(pf, ["trajectories", "run", "ammeter"])

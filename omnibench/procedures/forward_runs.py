@@ -4,7 +4,7 @@ the distance."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 from omnibench.procedures.plan import (
     DIRECTIONS,
@@ -20,8 +20,11 @@ from omnibench.procedures.plan import (
     top_keys,
 )
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
-def expand(pf: ProcedureFile, robot: Any) -> Plan:
+
+def expand(pf: ProcedureFile, robot: Robot) -> Plan:
     """III.ii: on the ground, all four wheels at the same duty for a fixed time, forward and
     backward; the operator measures the distance travelled; the encoders' rolling distance
     r * mean(delta phi) is compared with it (the no-slip check: sigma = 0 when driving straight)."""

@@ -4,7 +4,7 @@ displacement."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,8 +22,11 @@ from omnibench.procedures.plan import (
     top_keys,
 )
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
-def expand(pf: ProcedureFile, robot: Any) -> Plan:
+
+def expand(pf: ProcedureFile, robot: Robot) -> Plan:
     """III.iii: on the ground with lateral speed (rollers turn, sigma != 0), for each payload;
     the operator places each weight and measures the displacement (forward, left)."""
     top_keys(pf, ["runs", "directions", "payloads", "no_slip"])

@@ -20,13 +20,16 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
 from omnibench.errors import UserError
 from omnibench.files import read_text
 from omnibench.model.units import to_si
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 MAX_STEP_S = 3600.0   #: longest time a procedure file may give (s)
 MAX_COUNT = 1000      #: largest whole number (repetitions) a procedure file may give
@@ -40,7 +43,7 @@ class World:
 
     mode: str = "ground"  # "ground" | "upside_down"
     wheel_set: str = "standard"
-    wheel_mass: tuple[float, float, float, float] | None = None  # kg per wheel, None: robot's own
+    wheel_mass: tuple[float, ...] | None = None  # kg per wheel (4), None: robot's own
     payload: float = 0.0  # kg
 
     def describe(self) -> str:
@@ -74,7 +77,7 @@ class Step:
     label: str
     world: World
     params: dict[str, Any]
-    schedule: list[tuple[float, tuple[float, float, float, float]]]
+    schedule: list[tuple[float, tuple[float, ...]]]  # 4 duties from each start time
     duration: float  # s of driving (hold: the maximum hold time)
     settle: float = 0.0  # s with motors off after driving (timed/trajectory), or rest before (hold)
     place: bool = False  # ask the operator to put the robot at the start mark first
@@ -138,7 +141,7 @@ class ProcedureFile:
         except tomllib.TOMLDecodeError as exc:
             raise UserError(f"{path}: not valid TOML: {exc}") from None
 
-    def fail(self, section: str | None, key: str, message: str) -> None:
+    def fail(self, section: str | None, key: str, message: str) -> NoReturn:
         line = _line_of(self.text, section, key)
         where = f"{self.path}:{line}" if line else self.path
         name = f"[{section}] {key}" if section else key
@@ -273,7 +276,7 @@ def top_keys(pf: ProcedureFile, tables: list[str]) -> None:
                                   *tables])
 
 
-def duty_levels(pf: ProcedureFile, section: str, t: dict[str, Any], robot: Any) -> tuple[list[float], str]:
+def duty_levels(pf: ProcedureFile, section: str, t: dict[str, Any], robot: Robot) -> tuple[list[float], str]:
     """Duty magnitudes from either `duties` (dimensionless) or `voltages` (V) in `section`."""
     if ("duties" in t) == ("voltages" in t):
         pf.fail(section, "duties", "give exactly one of `duties` (fractions of V_batt) or `voltages` (V)")
@@ -305,7 +308,7 @@ def runs_settings(pf: ProcedureFile, section: str, t: dict[str, Any]) -> dict[st
     }
 
 
-def body_velocity_duties(robot: Any, v: np.ndarray) -> np.ndarray:
+def body_velocity_duties(robot: Robot, v: np.ndarray) -> np.ndarray:
     """Open-loop duties (4,) for body velocity v = (v1 m/s, v2 m/s, psi_dot rad/s).
 
     phi_dot = R v (inverse kinematics, design.md §2), then the motor's no-load relation
@@ -319,18 +322,18 @@ def body_velocity_duties(robot: Any, v: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- limits
-def stall_current(robot: Any, duty: float) -> float:
+def stall_current(robot: Robot, duty: float) -> float:
     """Motor current at stall for `duty`: |u| V_batt / R_a (A): the worst case at a step start."""
     return abs(duty) * robot.V_batt / robot.R_a
 
 
-def duty_limit(robot: Any) -> float:
+def duty_limit(robot: Robot) -> float:
     """Largest |duty| the robot file allows: its max_duty, and the duty whose stall current
     (|u| V_batt / R_a) reaches max_current, whichever is lower."""
     return min(float(robot.max_duty), robot.max_current * robot.R_a / robot.V_batt)
 
 
-def step_distance_bound(step: Step, robot: Any, dt: float = 0.01) -> float:
+def step_distance_bound(step: Step, robot: Robot, dt: float = 0.01) -> float:
     """Upper bound of how far a ground step takes the robot from where it started, m: the pose
     integrated over the schedule at the body velocity of each entry's no-load wheel speeds
     (u V_batt / k_e: friction only slows the robot), the largest distance from the start."""
@@ -357,7 +360,7 @@ def step_distance_bound(step: Step, robot: Any, dt: float = 0.01) -> float:
     return far
 
 
-def check_limits(plan: Plan, robot: Any, pf: ProcedureFile | None = None) -> None:
+def check_limits(plan: Plan, robot: Robot, pf: ProcedureFile | None = None) -> None:
     """Refuse (UserError) any step whose duty exceeds max_duty or whose stall current exceeds
     max_current, or a ground step that could drive further than `[space] max_distance`,
     naming the file and the step."""

@@ -13,10 +13,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnibench.procedures import energy_trajectories, forward_runs, lateral_runs, upside_down_sweep
 from omnibench.procedures.plan import Plan, ProcedureFile, check_limits, read_procedure_file, space_limit
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -72,7 +75,7 @@ def default_procedure_path(procedure: str) -> Path:
     return data_dir("procedures") / DEFAULT_FILES[procedure]
 
 
-def load_plan(path: str | Path, robot: Any, expect: str | None = None) -> Plan:
+def load_plan(path: str | Path, robot: Robot, expect: str | None = None) -> Plan:
     """Read, validate and expand a procedure file for `robot`; checks the robot's limits.
 
     `expect`: the procedure the command runs (a sweep file given to `omnibench forward` is an

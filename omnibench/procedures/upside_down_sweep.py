@@ -3,7 +3,7 @@ the wheel speeds are steady."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from omnibench.procedures.plan import (
     DIRECTIONS,
@@ -17,8 +17,11 @@ from omnibench.procedures.plan import (
     top_keys,
 )
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
-def expand(pf: ProcedureFile, robot: Any) -> Plan:
+
+def expand(pf: ProcedureFile, robot: Robot) -> Plan:
     """III.i: robot upside down; for each wheel set, each direction, each level: hold the duty
     on all four wheels until every wheel speed is steady (see `steady_state`), record it."""
     top_keys(pf, ["sweep", "wheel_sets", "steady_state", "rest"])

@@ -12,9 +12,9 @@ from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.campaign.run import procedure_files
-from omnibench.procedures import load_plan
 from omnibench.errors import UserError
 from omnibench.model import default_robot
+from omnibench.procedures import load_plan
 
 STEADY = {"min_hold": 0.2, "window": 0.3, "average": 0.3}
 TRUTH = dict(a=0.02, b=0.45, c=0.015)

@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.errors import UserError
 
 

@@ -159,8 +159,8 @@ def test_the_lateral_runs_first_visit_is_the_plan_for_half_the_information():
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.design.space import Candidate
     from omnibench.campaign.adaptive import half_information_pilot
-    from omnibench.procedures import World
     from omnibench.errors import UserError
+    from omnibench.procedures import World
 
     ground, loaded = World("ground", "standard", None, 0.0), World("ground", "standard", None, 4.0)
     up = World("upside_down", "standard", (0.9,) * 4, 0.0)
@@ -195,8 +195,8 @@ def test_the_lateral_pilot_is_chosen_over_the_prior_points_not_at_the_robot_file
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.design.space import Candidate
     from omnibench.campaign.adaptive import pilot_over_prior
-    from omnibench.procedures import World
     from omnibench.model import default_robot
+    from omnibench.procedures import World
 
     ground = World("ground", "standard", None, 0.0)
     cheap = Candidate("lateral", ground, heading=1.5708, speed=0.3, duration=1.5, robot_seconds=5.0, measurements=2)

@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
+from omnibench.errors import UserError
+from omnibench.model import default_robot
 from omnibench.procedures import (
     PROCEDURES,
     body_velocity_duties,
     default_procedure_path,
     load_plan,
 )
-from omnibench.errors import UserError
-from omnibench.model import default_robot
 
 
 @pytest.fixture(scope="module")

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fakeboard import FakeBoard  # noqa: E402
+from fakeboard import FakeBoard
 
-from omnibench.procedures import load_plan  # noqa: E402
-from omnibench.bench.runner import steady_state  # noqa: E402
-from omnibench.bench.session import _run_on_board, load_robot_file  # noqa: E402
-from omnibench.model import default_robot  # noqa: E402
-from omnibench.runs import read_run  # noqa: E402
+from omnibench.bench.runner import steady_state
+from omnibench.bench.session import _run_on_board, load_robot_file
+from omnibench.model import default_robot
+from omnibench.procedures import load_plan
+from omnibench.runs import read_run
 
 CPR = 980
 

@@ -15,7 +15,6 @@ import pytest
 from omnibench.errors import BoardError, UserError
 from omnibench.link.board import Board
 from omnibench.sim import registry
-
 from tests.simserver import spawn_server
 
 WATCHDOG_RESOLUTION_S = 0.0005  #: how often a board checks its watchdog (the firmware: its 500 µs tick)

@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from omnibench.model import Scenario, default_robot, simulate, simulate_batch
-from omnibench.model import kernel
+from omnibench.model import Scenario, default_robot, kernel, simulate, simulate_batch
 from omnibench.model.context import GRAVITY
 from omnibench.model.simulator import prepare, stable_substeps
 

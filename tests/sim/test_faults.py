@@ -11,7 +11,6 @@ from omnibench.errors import BoardError
 from omnibench.link.board import Board
 from omnibench.link.codec import Codec
 from omnibench.sim import registry
-
 from tests.simserver import spawn_server
 
 

@@ -13,15 +13,24 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import tomli_w
 
 from omnibench.analysis.design.planner import Unit
-from omnibench.analysis.design.space import (FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space,
-                                              build_space, sweep_hold)
+from omnibench.analysis.design.space import (
+    FORWARD_DUTIES,
+    LATERAL_SPEEDS,
+    SWEEP_DUTIES,
+    Candidate,
+    Limits,
+    Space,
+    build_space,
+    sweep_hold,
+)
 from omnibench.procedures import load_plan
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}

@@ -17,18 +17,31 @@ current 0.01 A per sample averaged, tape 2 mm.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.design.space import Candidate
-from omnibench.analysis.fitting import (MIN_SWEEP_SPEED, REWEIGHT_MIN_DOF, FitResult, _Problem, creeping_ground_speeds,
-                                       param_scale)
+from omnibench.analysis.fitting import (
+    MIN_SWEEP_SPEED,
+    REWEIGHT_MIN_DOF,
+    FitResult,
+    _Problem,
+    creeping_ground_speeds,
+    param_scale,
+)
 from omnibench.analysis.observations import (
-    DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
+    DEFAULT_TAPE_SE,
+    RUN_COLUMNS,
+    STEADY_AVERAGE,
+    SWEEP_COLUMNS,
+    Observations,
+    drive_window,
+    quantisation_se,
 )
 from omnibench.analysis.predictor import Predictor
 from omnibench.analysis.quantisation import quantised_slope
@@ -73,7 +86,9 @@ def sweep_average(c: Candidate) -> float:
 
 def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
     floor = quantisation_se(robot.counts_per_rev)
-    sweep, forward, lateral = [], [], []
+    sweep: list[dict[str, Any]] = []
+    forward: list[dict[str, Any]] = []
+    lateral: list[dict[str, Any]] = []
     for k, c in enumerate(cands):
         rid = f"candidate-{k}"
         average = sweep_average(c)
@@ -82,7 +97,7 @@ def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations
         for s, u in enumerate(c.duties(robot)):
             if c.procedure == "sweep":
                 for j in range(4):
-                    m = float(c.world.wheel_mass[j])
+                    m = float(c.world.wheel_mass[j])  # type: ignore[index]
                     sweep.append({"run": rid, "step": s, "wheel": j + 1, "u": u[j], "direction": float(np.sign(u[j])),
                                   "wheel_mass": m, "F_N": m * GRAVITY, "omega": 1.0, "omega_se": w_se,
                                   "current": 0.0 if current else np.nan, "current_se": i_se if current else np.nan,

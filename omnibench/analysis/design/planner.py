@@ -32,21 +32,29 @@ from __future__ import annotations
 import itertools
 import math
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from omnibench.analysis.design.information import (
-    PRIOR_SD, CandidateInformation, candidate_information, prior_information,
+    PRIOR_SD,
+    CandidateInformation,
+    candidate_information,
+    prior_information,
 )
 from omnibench.analysis.design.optimal import cheapest_weights
 from omnibench.analysis.design.space import (
-    ACTION_WORDS, Candidate, Costs, Space, sequence_actions,
+    ACTION_WORDS,
+    Candidate,
+    Costs,
+    Space,
+    sequence_actions,
 )
 from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, param_value
-from omnibench.procedures import World
 from omnibench.errors import UserError
+from omnibench.procedures import World
 
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).
 MARGIN = 0.9
@@ -187,7 +195,7 @@ def _null_params(M: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, flo
     out: dict[str, dict[str, float]] = {}
     zero = d <= 1e-300
     for i in np.flatnonzero(zero):
-        out[names[i]] = {names[i]: 1.0}
+        out[names[i]] = {names[i]: 1.0}  # type: ignore[call-overload]
     keep = np.flatnonzero(~zero)
     if not len(keep):
         return out
@@ -347,7 +355,7 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     order = [w for w in order if any(cands[k].world == w for k in chosen)]
     units = []
     for w in order:
-        ks = sorted((k for k in chosen if cands[k].world == w),
+        ks = sorted((k for k in chosen if cands[k].world == w),  # type: ignore[assignment]
                     key=lambda k: (cands[k].procedure, cands[k].duration, cands[k].duty, cands[k].heading,
                                    cands[k].speed))
         units += [Unit(cands[k], chosen[k], ranks[k]) for k in ks]

@@ -13,8 +13,9 @@ from its robot file (max_duty, max_current); the floor from `Limits`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -82,7 +83,7 @@ class Candidate:
         return (f"lateral heading {math.degrees(self.heading):.0f} deg both ways at {self.speed:g} m/s "
                 f"for {self.duration:g} s, payload {self.world.payload:g} kg")
 
-    def duties(self, robot: Any) -> list[tuple[float, float, float, float]]:
+    def duties(self, robot: Any) -> list[tuple[float, ...]]:
         """The duties of its two steps."""
         if self.procedure in ("sweep", "forward"):
             return [(self.duty,) * 4, (-self.duty,) * 4]
