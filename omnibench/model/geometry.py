@@ -1,7 +1,7 @@
 """Mecanum geometry: inverse kinematics R (phi_dot = R v) and roller slip S (sigma = S v).
 
 Wheel order 1 FL, 2 FR, 3 RL, 4 RR at body positions (s_i, d_i) with s = (L, L, -L, -L),
-d = (l, -l, l, -l) (design.md §2).
+d = (l, -l, l, -l) (docs/robot-file.md, the model).
 """
 
 from __future__ import annotations

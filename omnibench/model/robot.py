@@ -71,7 +71,7 @@ SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects", *PROV
 
 @dataclass(frozen=True)
 class Robot:
-    """A four-mecanum-wheel robot (SI units; symbols as in the paper and design.md §2)."""
+    """A four-mecanum-wheel robot (SI units; symbols as in the paper and docs/robot-file.md, the model)."""
 
     name: str
     L: float

@@ -311,7 +311,7 @@ def runs_settings(pf: ProcedureFile, section: str, t: dict[str, Any]) -> dict[st
 def body_velocity_duties(robot: Robot, v: np.ndarray) -> np.ndarray:
     """Open-loop duties (4,) for body velocity v = (v1 m/s, v2 m/s, psi_dot rad/s).
 
-    phi_dot = R v (inverse kinematics, design.md §2), then the motor's no-load relation
+    phi_dot = R v (inverse kinematics, docs/robot-file.md, the model), then the motor's no-load relation
     u = k_e phi_dot / V_batt. Friction is not compensated, so the robot drives somewhat slower
     than asked; the run records the duties actually sent, which is what the model needs.
     """

@@ -1,4 +1,4 @@
-"""The fit says what a data set cannot separate (design.md §3), instead of printing a number for each."""
+"""The fit says what a data set cannot separate (docs/fit.md, "Identifiability verdicts"), instead of printing a number for each."""
 
 from __future__ import annotations
 

@@ -43,7 +43,7 @@ def test_steady_state_accepts_constant_speed_and_rejects_a_ramp():
 
 
 def closed_form(robot, u, wheel_mass):
-    """Upside-down steady speed (rad/s), design.md §2 with F_N = wheel weight:
+    """Upside-down steady speed (rad/s), docs/robot-file.md, the model with F_N = wheel weight:
     eta k_t (u V - k_e w)/R_a = (1 + c m g)(a w + b wheel_sign(w)), the model's regularised sign
     wheel_sign(w) = tanh(w / eps) (eps = sign_width_phi)."""
     from scipy.optimize import brentq
