@@ -15,17 +15,20 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.analysis.observations import Observations
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 PHYSICS_FREE = ("a", "b", "I_w")
 SWEEP_FREE = ("a", "b", "c")  # what the sweep measures (paper III.i)
 
 
-def physics_free(robot: Any) -> list[str]:
+def physics_free(robot: Robot) -> list[str]:
     """Parameters refitted per fold: a, b, I_w and every declared effect's fitted parameters."""
     from omnibench.effects import EFFECTS
 
@@ -38,7 +41,7 @@ class PhysicsModel:
     (default `physics_free`), and whether each training run's supply is re-estimated
     (sessions.py: a gain that differs between measurement days)."""
 
-    robot: Any
+    robot: Robot
     free: Sequence[str] | None = None
     run_supplies: bool = False
     #: the paper's order: friction (a, b) from the sweep alone, then the rest from the traces
@@ -80,7 +83,7 @@ def _run_kind(obs: Observations, run: str) -> str:
     return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
 
 
-def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+def _run_error(robot: Robot, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """The run's held-out NRMSE and, for a trace, its wheel speeds (measured, predicted)."""
     from omnibench.analysis.predict import predict_runs
 

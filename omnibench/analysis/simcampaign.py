@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -34,6 +34,9 @@ from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate_batch
 from omnibench.procedures import REGISTRY
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 TELEMETRY_DT = 0.01  # s
 PHYSICS_DT = 1e-3  # s
 CURRENT_NOISE = 0.01  # A
@@ -45,7 +48,7 @@ SWEEP_HOLD = 0.6  # s held per sweep level (the model is steady after ~30 ms ups
 _FILE_OF = {p.observes: p.name for p in REGISTRY}  # Observations table -> procedure
 
 
-def _plan(proc: str, robot: Any, files: Mapping[str, str | Path] | None):
+def _plan(proc: str, robot: Robot, files: Mapping[str, str | Path] | None):
     from omnibench.procedures import default_procedure_path, load_plan
 
     path = (files or {}).get(proc) or default_procedure_path(_FILE_OF[proc])
@@ -88,7 +91,7 @@ def plant_simulator(generator: str = "model") -> Callable:
     raise ValueError(f"unknown world generator {generator!r}; use model or independent")
 
 
-def simulated_observations(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
+def simulated_observations(robot: Robot, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
                            procedures: Sequence[str] = ("sweep", "forward", "lateral", "energy"),
                            seed: int = 0, current: bool = True, files: Mapping[str, str | Path] | None = None,
                            run_prefix: str = "sim", generator: str = "model") -> Observations:
@@ -102,7 +105,7 @@ def simulated_observations(robot: Any, *, world_effects: Mapping[str, Mapping[st
                              simulate=plant_simulator(generator))
 
 
-def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]],
+def simulate_campaign(robot: Robot, *, world_effects: Mapping[str, Mapping[str, float]],
                       procedures: Sequence[str], seed: int, current: bool,
                       files: Mapping[str, str | Path] | None, run_prefix: str,
                       simulate: Callable = simulate_batch) -> Observations:

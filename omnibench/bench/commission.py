@@ -13,13 +13,16 @@ from __future__ import annotations
 import datetime as dt
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.bench.prompts import WHEELS
 from omnibench.bench.wiring import Wiring
 from omnibench.errors import UserError
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 JOG_DUTY = 0.15        #: low duty: the wheel turns visibly, nothing else happens
 JOG_S = 0.6            #: board seconds per jog
@@ -75,7 +78,7 @@ def _jog(board: Any, channel: int, duty: float) -> dict[str, Any]:
             "volts": float(np.mean(volts)) if volts else None}
 
 
-def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = print,
+def find_wiring(board: Any, robot: Robot, ask: Ask, echo: Callable[[str], None] = print,
                 confirm: Callable[[str], None] | None = None) -> Wiring:
     """Jog every channel, ask, check; the Wiring found, or UserError naming what is wrong."""
     from omnibench.bench.prompts import ask_yes

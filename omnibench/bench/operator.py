@@ -17,7 +17,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from omnibench.errors import UserError
 from omnibench.files import read_toml
 from omnibench.model.units import to_si
 from omnibench.procedures import Step, World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,7 @@ class ConsoleOperator:
 
     source = "console"
 
-    def __init__(self, robot: Any = None, mirror: Any = None) -> None:
+    def __init__(self, robot: Robot | None = None, mirror: Any = None) -> None:
         self.robot, self.mirror = robot, mirror
         self._sim = SimulatedOperator(mirror, noise=0.0) if mirror is not None else None
 

@@ -11,9 +11,12 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 WHEELS = ("FL", "FR", "RL", "RR")
 YES = ("yes", "y")
@@ -69,7 +72,7 @@ def _wheels(u: tuple[float, ...]) -> str:
     return ", ".join(f"{w} {x:+.2f}" for w, x in zip(WHEELS, u))
 
 
-def free_path(step: Any, robot: Any) -> tuple[float, float, float]:
+def free_path(step: Any, robot: Robot) -> tuple[float, float, float]:
     """Upper-bound path of a ground step with no load and no slip: (farthest distance from the
     start m, net forward m, net left m). Wheel speed u V_batt / k_e is the no-load speed, so the
     real robot stays within this distance."""
@@ -90,7 +93,7 @@ def free_path(step: Any, robot: Any) -> tuple[float, float, float]:
     return far, x, y
 
 
-def describe_motion(step: Any, robot: Any) -> str:
+def describe_motion(step: Any, robot: Robot) -> str:
     """One line: what moves in `step`, which way and how far (or for how long in the air)."""
     u0 = step.schedule[0][1]
     if step.world.mode == "upside_down":

@@ -36,13 +36,16 @@ import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
 from omnibench.errors import BoardError, Terminated, UserError
 from omnibench.procedures import Plan, Step, World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
 QUESTION_FACTOR = 3.0
@@ -148,7 +151,7 @@ class Runner:
     `echo(line)` prints one line for the engineer.
     """
 
-    def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
+    def __init__(self, plan: Plan, robot: Robot, board: Any, writer: Any, operator: Any, *,
                  progress: Callable[[float, str], None] | None = None,
                  echo: Callable[[str], None] | None = None, read_timeout: float = 2.0,
                  view: Any = None) -> None:

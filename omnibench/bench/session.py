@@ -15,7 +15,7 @@ import math
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnibench.errors import UserError
 from omnibench.procedures import (
@@ -28,6 +28,9 @@ from omnibench.procedures import (
     step_distance_bound,
 )
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 
 def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
     """(Robot, its TOML text as run, its path or 'default')."""
@@ -38,7 +41,7 @@ def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
     return robot, path.read_text(encoding="utf-8"), str(path) if robot_file else f"default ({path.name})"
 
 
-def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
+def plan_summary(plan: Plan, robot: Robot) -> dict[str, Any]:
     """What a dry run prints: steps, driving time bound, peak voltage and current, actions."""
     from omnibench.bench.operator import actions_for
 
@@ -71,7 +74,7 @@ def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
     }
 
 
-def format_plan(plan: Plan, robot: Any) -> list[str]:
+def format_plan(plan: Plan, robot: Robot) -> list[str]:
     s = plan_summary(plan, robot)
     lines = [f"{LABELS[plan.procedure]} from {plan.path}: {s['steps']} steps"]
     world = None
@@ -289,7 +292,7 @@ def _wiring_record(board: Any) -> dict[str, Any] | None:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(w).items()} if w is not None else None
 
 
-def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measurement_noise: float | None,
+def _choose_operator(board: Any, plan: Plan, robot: Robot, answer_op: Any, measurement_noise: float | None,
                      who: str = "auto") -> Any:
     from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
 
@@ -307,7 +310,7 @@ def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measure
     return ConsoleOperator(robot)
 
 
-def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot_name: str, board: Any, *,
+def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, robot_name: str, board: Any, *,
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
                   measurement_noise: float | None, who: str = "auto",

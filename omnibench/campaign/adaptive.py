@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files, write_procedures
 from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
@@ -42,6 +42,9 @@ from omnibench.campaign.run import Analyse
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 MAX_ROUNDS = 10
 PILOT = 0.5
@@ -211,7 +214,7 @@ def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapp
     return replan(aims), aims
 
 
-def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[str, tuple[float, bool]],
+def defer_unmeasured(units: list[Unit], robot: Robot, res: Any, targets: Mapping[str, tuple[float, bool]],
                      refused: Mapping[str, str], se: Mapping[str, float], space: Space, costs: Costs, *,
                      current: bool, start: World | None, floor: list[Any], have: set[str], obs: Any,
                      budget_seconds: float, budget_actions: float,
@@ -247,7 +250,7 @@ def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[s
     return here + later, deferred
 
 
-def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
+def _fit(robot: Robot, obs: Any, previous: Any = None) -> Any:
     """The fit of all data so far, started from the previous round's values (else `robot`'s;
     None if it fails)."""
     from omnibench.analysis.fitting import fit
@@ -260,7 +263,7 @@ def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
         return None
 
 
-def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
+def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
                   execute: Callable[[list[tuple[str, Path]], int], Any], folder: Path, *,
                   costs: Costs = Costs(), limits: Limits = Limits(), current: bool = True,
                   budget_seconds: float = math.inf, budget_actions: float = math.inf,
@@ -441,7 +444,7 @@ def _plan_from_prior(prior: Any, targets: Mapping[str, tuple[float, bool]], spac
                 budget_seconds=budget_seconds, budget_actions=budget_actions, required=required, info=info)
 
 
-def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list[Unit],
+def _block_prediction(robot: Robot, res: Any, obs: Any, current: bool, block: list[Unit],
                       prior: Any = None) -> dict[str, float]:
     """Expected SE after only `block` runs (the design's information restricted to it; before any
     data at the previous campaign's values and noise when there is one)."""
@@ -465,7 +468,7 @@ def _finite(v: float) -> float | None:
     return float(v) if v is not None and math.isfinite(v) else None
 
 
-def _value(robot: Any, p: str) -> float:
+def _value(robot: Robot, p: str) -> float:
     from omnibench.analysis.fitting import param_value
 
     return param_value(robot, p)
@@ -577,7 +580,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     return results
 
 
-def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path], space: Space, costs: Costs,
+def design_summary(result: AdaptiveResult, robot: Robot, files: Mapping[str, Path], space: Space, costs: Costs,
                    current: bool) -> dict[str, Any]:
     """The rounds, and the fixed grid's expected SE against robot time (its information at the
     final fit, in the order the shipped procedures run) for comparison."""

@@ -15,13 +15,16 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnibench import __version__
 from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.errors import Terminated, UserError
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 ANALYSIS = ("fit", "validate-energy", "diagnose")
 #: runs the analysis stages: (runs_dir, out, robot_file, echo, stages, *, into=None, earlier=None) -> results by
@@ -160,7 +163,7 @@ def _interrupted_analysis(out: Path) -> dict[str, Any] | None:
     return data["analysis"]
 
 
-def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Callable[[str], None], *,
+def _finish(results: dict[str, Any], out: Path, robot: Robot, t0: float, echo: Callable[[str], None], *,
             summary: bool) -> None:
     """Plots, report.md, report.html and campaign.json for `results` (complete or interrupted)."""
     from omnibench.campaign.html_report import write_html
@@ -374,7 +377,7 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
 
 
 # --------------------------------------------------------------------------- plots
-def make_plots(results: dict[str, Any], out: Path, robot: Any) -> dict[str, str]:
+def make_plots(results: dict[str, Any], out: Path, robot: Robot) -> dict[str, str]:
     """PNG plots of each procedure's results (matplotlib, headless)."""
     import matplotlib
 
@@ -461,7 +464,7 @@ def _save(fig: Any, path: Path, plt: Any) -> str:
 
 
 # --------------------------------------------------------------------------- report
-def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
+def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
     """report.md: what was run, what it found, what each analysis stage said."""
     from omnibench.bench.session import summary_lines
     from omnibench.runs import read_run

@@ -20,7 +20,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -46,6 +46,9 @@ from omnibench.analysis.observations import (
 from omnibench.analysis.predictor import Predictor
 from omnibench.analysis.quantisation import quantised_slope
 from omnibench.model.context import GRAVITY
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 TELEMETRY_HZ = 100.0
 CURRENT_NOISE = 0.01  # A per telemetry sample (the simulated board; a real board's is read from its data)
@@ -84,7 +87,7 @@ def sweep_average(c: Candidate) -> float:
     return c.duration if c.duration > 0 else STEADY_AVERAGE
 
 
-def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
+def _rows(cands: Sequence[Candidate], robot: Robot, current: bool) -> Observations:
     floor = quantisation_se(robot.counts_per_rev)
     sweep: list[dict[str, Any]] = []
     forward: list[dict[str, Any]] = []
@@ -170,7 +173,7 @@ _SENSITIVITIES: dict[tuple, _Sensitivity] = {}
 _SENSITIVITIES_KEPT = 8
 
 
-def _sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+def _sensitivity(robot: Robot, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
                  current: bool) -> _Sensitivity:
     key = (repr(robot), tuple(cands), tuple(names), current)
     hit = _SENSITIVITIES.pop(key, None)
@@ -182,7 +185,7 @@ def _sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale
     return hit
 
 
-def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
+def candidate_information(robot: Robot, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
                           group_s2: Mapping[str, float] | None = None,
                           group_dof: Mapping[str, float] | None = None) -> CandidateInformation:
     """Information each candidate adds about `names` at `robot`'s parameter values (each group's
@@ -208,7 +211,7 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     return CandidateInformation(names, scale, info, usable)
 
 
-def _simulate_sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+def _simulate_sensitivity(robot: Robot, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
                           current: bool) -> _Sensitivity:
     obs = _rows(cands, robot, current)
     pred = Predictor(obs, [p for p in ("sweep", "forward", "lateral") if len(obs.table(p))])
@@ -259,7 +262,7 @@ def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_
             pred.sigma[k] = expected_speed_se(f0[k], dur, counts_per_rev)
 
 
-def _value(robot: Any, name: str) -> float:
+def _value(robot: Robot, name: str) -> float:
     from omnibench.analysis.fitting import param_value
 
     return param_value(robot, name)

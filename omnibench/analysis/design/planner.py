@@ -34,7 +34,7 @@ import math
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -56,6 +56,9 @@ from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, pa
 from omnibench.errors import UserError
 from omnibench.procedures import World
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).
 MARGIN = 0.9
 REPS = (1, 2, 4, 8)
@@ -69,7 +72,7 @@ MAX_REPS = 8
 NULL_WEIGHT = 0.05
 
 
-def parse_targets(text: str, robot: Any) -> dict[str, tuple[float, bool]]:
+def parse_targets(text: str, robot: Robot) -> dict[str, tuple[float, bool]]:
     """'a=2%,b=0.01' -> {name: (value, relative)}: '2%' is relative to the parameter's value,
     a plain number an absolute SE in SI units. UserError naming the bad item."""
     out: dict[str, tuple[float, bool]] = {}
@@ -130,7 +133,7 @@ class Design:
     def operator_actions(self) -> int:
         return int(sum(self.actions.values()))
 
-    def table(self, robot: Any | None = None) -> str:
+    def table(self, robot: Robot | None = None) -> str:
         """Expected SE before and after the plan, against each target."""
         lines = [f"{'parameter':<22} {'value':>11} {'target SE':>11} {'SE now':>11} {'SE after':>11}  met"]
         for p, t in self.targets.items():
@@ -169,7 +172,7 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}" if math.isfinite(x) else "inf"
 
 
-def planning_names(robot: Any, current: bool = True) -> list[str]:
+def planning_names(robot: Robot, current: bool = True) -> list[str]:
     """Parameters the fit of a whole campaign estimates (the paper's seven, the motor constants
     the sweep's currents give, every declared effect's): all of them enter the information."""
     names = list(CORE) + (["k_e", "R_a"] if current else [])
@@ -232,7 +235,7 @@ def world_order(worlds: list[World], start: World | None, costs: Costs) -> list[
     return best
 
 
-def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, bool]], space: Space,
+def plan(robot: Robot, res: FitResult | None, targets: Mapping[str, tuple[float, bool]], space: Space,
          costs: Costs = Costs(), *, current: bool = True, start: World | None = None,
          budget_seconds: float = math.inf, budget_actions: float = math.inf, margin: float = MARGIN,
          required: Sequence[Candidate] = (), info: CandidateInformation | None = None,

@@ -18,15 +18,18 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: Prior points: each unmeasured parameter times and divided by this factor (one at a time).
 SPREAD = 2.0
 
 
-def prior_points(robot: Any, unmeasured: Sequence[str]) -> list[dict[str, float]]:
+def prior_points(robot: Robot, unmeasured: Sequence[str]) -> list[dict[str, float]]:
     """Values of the unmeasured parameters to plan at: the robot file's, and each one times and
     divided by SPREAD with the others at the file's (2 n + 1 points; an order of magnitude is all
     the lab is assumed to know before the first run that measures them)."""
