@@ -37,10 +37,10 @@ def console_ask(question: str, choices: list[str]) -> str:
     """Ask until one of `choices` is typed (no default; type-ahead dropped)."""
     import click
 
-    from omnibench.bench.prompts import _read
+    from omnibench.bench.prompts import read_answer
 
     while True:
-        text = _read(f"{question} [{'/'.join(choices)}]").lower()
+        text = read_answer(f"{question} [{'/'.join(choices)}]").lower()
         if text in choices:
             return text
         if text in ("stop", "quit"):

@@ -164,13 +164,13 @@ class ConsoleOperator:
         return "done"
 
     def measure(self, step: Step) -> Any:
-        from omnibench.bench.prompts import _read
+        from omnibench.bench.prompts import read_answer
 
         while True:
             if step.measure == "distance":
-                text = _read("Distance travelled, start mark to robot (e.g. 1.23 m)")
+                text = read_answer("Distance travelled, start mark to robot (e.g. 1.23 m)")
             else:
-                text = _read("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)")
+                text = read_answer("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)")
             try:
                 return self._parse(step, text)
             except UserError as exc:
@@ -188,10 +188,10 @@ class ConsoleOperator:
         """`question` (the tape disagrees with the encoders): a new reading, or None to keep."""
         import click
 
-        from omnibench.bench.prompts import _read
+        from omnibench.bench.prompts import read_answer
 
         while True:
-            text = _read(f"{question}: re-measure? Type the new reading, or keep")
+            text = read_answer(f"{question}: re-measure? Type the new reading, or keep")
             if text.lower() == "keep":
                 return None
             try:

@@ -34,14 +34,14 @@ def flush_typeahead() -> None:
         pass
 
 
-def _read(prompt: str) -> str:
+def read_answer(prompt: str) -> str:
     import click
 
     flush_typeahead()
     return click.prompt(prompt, default="", show_default=False, err=True).strip()
 
 
-def ask_yes(question: str, read: Callable[[str], str] = _read) -> None:
+def ask_yes(question: str, read: Callable[[str], str] = read_answer) -> None:
     """Ask until the person types yes (returns) or no (click.Abort: the run stops, resumable).
 
     An empty answer is never taken as either: it asks again."""

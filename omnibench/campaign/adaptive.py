@@ -451,7 +451,7 @@ def _block_prediction(robot: Robot, res: Any, obs: Any, current: bool, block: li
     import numpy as np
 
     from omnibench.analysis.design.information import candidate_information, prior_information
-    from omnibench.analysis.design.planner import _se, planning_names
+    from omnibench.analysis.design.planner import information_se, planning_names
 
     noise = res if res is not None else prior
     model = noise.robot if noise is not None else robot
@@ -461,7 +461,7 @@ def _block_prediction(robot: Robot, res: Any, obs: Any, current: bool, block: li
                                group_dof=noise.group_dof if noise is not None else None)
     M = prior_information(res, names, ci.scale, obs) + np.einsum("k,kij->ij", np.array([u.reps for u in block], float),
                                                              ci.info)
-    return dict(zip(names, _se(M, ci.scale)))
+    return dict(zip(names, information_se(M, ci.scale)))
 
 
 def _finite(v: float) -> float | None:
@@ -586,7 +586,7 @@ def design_summary(result: AdaptiveResult, robot: Robot, files: Mapping[str, Pat
     final fit, in the order the shipped procedures run) for comparison."""
     from omnibench.analysis.design.files import fixed_grid_units
     from omnibench.analysis.design.information import candidate_information, prior_information
-    from omnibench.analysis.design.planner import _se, planning_names
+    from omnibench.analysis.design.planner import information_se, planning_names
 
     targets = result.targets
     fixed = fixed_grid_units(robot, files)
@@ -606,7 +606,7 @@ def design_summary(result: AdaptiveResult, robot: Robot, files: Mapping[str, Pat
             if u.candidate.procedure == "sweep" and u.candidate.world not in seen_rest:
                 seen_rest.add(u.candidate.world)
                 t += 2 * space.sweep_rest
-            se = dict(zip(names, _se(M, ci.scale)))
+            se = dict(zip(names, information_se(M, ci.scale)))
             curve.append({"robot_seconds": t, "se": {p: _finite(se[p]) for p in targets}})
         fixed_s = t
         fixed_a = sum(sequence_actions([u.candidate.world for u in fixed for _ in range(u.reps)],

@@ -72,9 +72,9 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     stages = parse_stages(analysis)
     stage_options: dict[str, tuple[str, ...]] = {}
     if candidates is not None:
-        from omnibench.cli.diagnose import _candidates
+        from omnibench.cli.diagnose import parse_candidates
 
-        stage_options["diagnose"] = ("--candidates", ",".join(_candidates(candidates) or []))
+        stage_options["diagnose"] = ("--candidates", ",".join(parse_candidates(candidates) or []))
     if adaptive:
         from omnibench.analysis.design.space import Limits
         from omnibench.campaign.adaptive import run_adaptive_campaign

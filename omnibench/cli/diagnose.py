@@ -13,7 +13,7 @@ from omnibench.cli.params import FINITE, NonEmptyPath
 from omnibench.errors import UserError
 
 
-def _candidates(text: str | None) -> list[str] | None:
+def parse_candidates(text: str | None) -> list[str] | None:
     if text is None:
         return None
     from omnibench.effects import EFFECTS
@@ -66,7 +66,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         raise UserError(f"--alpha {alpha}: give a significance level between 0 and 0.5, e.g. 0.001")
     if max_effects < 0:
         raise UserError(f"--max-effects {max_effects}: must be 0 or more")
-    names = _candidates(candidates)
+    names = parse_candidates(candidates)
     procs = _procedures(procedures)
     from omnibench.analysis.diagnosis import diagnose
     from omnibench.analysis.diagnosis.report import write_model, write_plots

@@ -213,7 +213,8 @@ def _null_params(M: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, flo
     return out
 
 
-def _se(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
+def information_se(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Standard errors from the Fisher information M of the scaled parameters (x / scale), in x's units."""
     try:
         V = np.linalg.inv(M)
     except np.linalg.LinAlgError:
@@ -264,7 +265,7 @@ def plan(robot: Robot, res: FitResult | None, targets: Mapping[str, tuple[float,
     scale = info.scale
     M0 = prior_information(res, names, scale, obs)
     data0 = M0 - np.eye(len(names)) / PRIOR_SD ** 2
-    se_before = dict(zip(names, _se(M0, scale)))
+    se_before = dict(zip(names, information_se(M0, scale)))
     for p in names:  # parameters the fit has not estimated yet have no SE of their own
         if res is None or p not in res.cov.index:
             se_before[p] = math.inf
@@ -365,7 +366,7 @@ def plan(robot: Robot, res: FitResult | None, targets: Mapping[str, tuple[float,
     robot_s = sum(u.candidate.robot_seconds * u.reps for u in units) + 2 * space.sweep_rest * len(
         _sweep_files(chosen, cands))
     acts = sequence_actions(order, sum(u.candidate.measurements * u.reps for u in units), start)
-    se_after = dict(zip(names, _se(M, scale)))
+    se_after = dict(zip(names, information_se(M, scale)))
     for p in names:
         if not np.isfinite(se_after[p]) or se_after[p] >= 0.999 * PRIOR_SD * scale[names.index(p)]:
             se_after[p] = se_before[p]  # nothing but the prior: no SE of its own
