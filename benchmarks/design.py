@@ -9,7 +9,7 @@ fixed grid on simulated worlds.
 
 Per seed: the fixed grid (the shipped sweep, forward and lateral procedure files) is simulated
 and fitted; the targets are the median over seeds of the fixed grid's own relative SEs on
-a, b, c, a_r, b_r, c_r, C_r ("the same target SEs"). The adaptive loop (omnibench.bench.adaptive,
+a, b, c, a_r, b_r, c_r, C_r ("the same target SEs"). The adaptive loop (omnibench.campaign.adaptive,
 the same code `campaign --adaptive` runs) then plans, simulates the planned procedure files
 (`simcampaign.simulated_observations` with those files: the model, or with `--generator independent`
 the physics written for testing only, with the simulated board's sensor noise),
@@ -64,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.adaptive import adaptive_loop
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import adaptive_loop
+    from omnibench.campaign.run import procedure_files
     from omnibench.effects import EFFECTS
     from omnibench.model import default_robot
 

@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     from omnibench.analysis.design.space import Costs
     from omnibench.analysis.fitting import fit, param_value
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()

@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()

@@ -19,9 +19,12 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the test helpers (simserver.py)
+
+from simserver import spawn_server
+
 from omnibench.link.board import Board
 from omnibench.link.codec import Codec
-from omnibench.sim.testing import spawn_server
 
 RATES = (200, 500, 1000)
 BAUD = 115200

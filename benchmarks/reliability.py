@@ -29,11 +29,12 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
+from reliability.test_stale_samples import check_sweep, run_sweep  # noqa: E402
+from simserver import HostStalls, spawn_server  # noqa: E402
+
 from omnibench.link.codec import Codec  # noqa: E402
 from omnibench.link.fuzz import fuzz_frames, predicted_rate, spec_with_width  # noqa: E402
 from omnibench.runs import read_run  # noqa: E402
-from omnibench.sim.testing import HostStalls, spawn_server  # noqa: E402
-from reliability.test_stale_samples import check_sweep, run_sweep  # noqa: E402
 
 
 def stale(tmp: Path, sweeps: int) -> None:

@@ -56,7 +56,7 @@ FRICTION = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
 
 
 # ---------------------------------------------------------------------------------------------
-# The comparison: the paper's model (design.md §2) as a plain Python loop over steps, numpy for
+# The comparison: the paper's model (docs/robot-file.md, the model) as a plain Python loop over steps, numpy for
 # each step, classical RK4 at dt, the same regularised signs as the kernel. Nothing shared with
 # the kernel but the robot's numbers and the geometry matrices.
 # ---------------------------------------------------------------------------------------------

@@ -14,8 +14,8 @@ omnibench.effects.timing), compared on the same finite-difference wheel speeds a
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from numba import njit

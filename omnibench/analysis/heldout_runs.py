@@ -13,18 +13,22 @@ training traces' wheel speeds.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.analysis.observations import Observations
 
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 PHYSICS_FREE = ("a", "b", "I_w")
 SWEEP_FREE = ("a", "b", "c")  # what the sweep measures (paper III.i)
 
 
-def physics_free(robot: Any) -> list[str]:
+def physics_free(robot: Robot) -> list[str]:
     """Parameters refitted per fold: a, b, I_w and every declared effect's fitted parameters."""
     from omnibench.effects import EFFECTS
 
@@ -37,7 +41,7 @@ class PhysicsModel:
     (default `physics_free`), and whether each training run's supply is re-estimated
     (sessions.py: a gain that differs between measurement days)."""
 
-    robot: Any
+    robot: Robot
     free: Sequence[str] | None = None
     run_supplies: bool = False
     #: the paper's order: friction (a, b) from the sweep alone, then the rest from the traces
@@ -70,7 +74,7 @@ class RunError:
         options += [(alt.get(label), sketch, self.alt_series.get(sketch, {}).get(label))
                     for sketch, alt in self.alternatives.items()]
         options = [o for o in options if o[0] is not None and np.isfinite(o[0])]
-        return min(options, key=lambda o: o[0]) if options else (None, self.assumed_sketch, None)
+        return min(options, key=lambda o: o[0]) if options else (None, self.assumed_sketch, None)  # type: ignore[arg-type, return-value]
 
 
 def _run_kind(obs: Observations, run: str) -> str:
@@ -79,7 +83,7 @@ def _run_kind(obs: Observations, run: str) -> str:
     return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
 
 
-def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+def _run_error(robot: Robot, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """The run's held-out NRMSE and, for a trace, its wheel speeds (measured, predicted)."""
     from omnibench.analysis.predict import predict_runs
 
@@ -91,7 +95,7 @@ def _run_error(robot: Any, obs: Observations, run: str) -> tuple[float, tuple[np
     if reps:
         series = tuple(np.concatenate([r[[f"w{j}_{x}" for j in range(1, 5)]].to_numpy() for r in reps])
                        for x in ("meas", "pred"))
-    return float(pred.nrmse.get("wheel_speed", float("nan"))), series
+    return float(pred.nrmse.get("wheel_speed", float("nan"))), series  # type: ignore[return-value]
 
 
 def _sweep_measures(name: str, sweep: Any = None) -> bool:

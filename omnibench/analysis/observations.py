@@ -36,9 +36,10 @@ noise of the simulated board) for tests and benchmarks.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -46,18 +47,12 @@ import pandas as pd
 from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.errors import UserError
 from omnibench.model.context import GRAVITY
+from omnibench.procedures import RUN_PROCEDURES  # run.json `procedure` -> Observations table
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 PROCEDURES = ("sweep", "forward", "lateral", "energy", "step_response")
-
-#: run.json `procedure` -> Observations table
-RUN_PROCEDURES = {
-    "upside_down_sweep": "sweep",
-    "forward_runs": "forward",
-    "lateral_runs": "lateral",
-    "energy_trajectories": "energy",
-    "step_response": "step_response",
-    "random_duty": "step_response",  # a logged command trace replayed whole, like a step response
-}
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
                  "current", "current_se", "n", "steady", "time", "V_batt"]
@@ -207,7 +202,7 @@ class Observations:
 
     # ----------------------------------------------------------------------------- from runs
     @classmethod
-    def from_runs(cls, paths: Iterable[str | Path], robot: Any = None) -> "Observations":
+    def from_runs(cls, paths: Iterable[str | Path], robot: Robot | None = None) -> "Observations":
         """Read run directories written by omnibench.runs (any procedure; folders are searched
         recursively). `robot` gives the wheel masses and counts per revolution when a run does
         not record them (default: the run's own robot, else the default Omnibot)."""
@@ -239,7 +234,7 @@ def _num(v: Any) -> float:
     return x
 
 
-def _run_robot(run: Any, robot: Any) -> Any:
+def _run_robot(run: Any, robot: Robot | None) -> Robot:
     if robot is not None:
         return robot
     from omnibench.model import default_robot
@@ -270,10 +265,6 @@ def _trace(samples: pd.DataFrame, t0: float | None, cpr: float, relative: bool =
     for c in ("i1", "i2", "i3", "i4", "V_batt", "I_batt"):
         out[c] = s[c].to_numpy(dtype=float)
     return out.reset_index(drop=True)
-
-
-def _col(steps: pd.DataFrame, name: str) -> pd.Series:
-    return steps[name] if name in steps.columns else pd.Series([None] * len(steps), index=steps.index)
 
 
 def run_key(run: Any) -> str:
@@ -320,7 +311,7 @@ def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
+def _from_run(run: Any, robot: Robot | None, rid: str | None = None) -> Observations:
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
         raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
@@ -373,7 +364,7 @@ def _from_run(run: Any, robot: Any, rid: str | None = None) -> Observations:
     return obs
 
 
-def _sweep_rows(run: Any, rid: str, robot: Any, cpr: float) -> pd.DataFrame:
+def _sweep_rows(run: Any, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
     rows = []
     floor = quantisation_se(cpr)
     for _, st in run.steps.iterrows():
@@ -436,7 +427,7 @@ def drive_window(duration: float) -> tuple[float, float]:
 
 def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: float, payload: float,
               heading: float, measured_forward: float, measured_left: float, trace: pd.DataFrame | None,
-              robot: Any, cpr: float, dphi: np.ndarray | None = None,
+              robot: Robot, cpr: float, dphi: np.ndarray | None = None,
               measured_se: float = DEFAULT_TAPE_SE, time: float = float("nan")) -> dict[str, Any]:
     """One `forward`/`lateral` row from a step's facts and its trace (t from the step start)."""
     from omnibench.model.geometry import inverse_kinematics
@@ -466,7 +457,7 @@ def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: fl
     return row
 
 
-def _run_rows(run: Any, rid: str, robot: Any, cpr: float, proc: str) -> tuple[pd.DataFrame, dict]:
+def _run_rows(run: Any, rid: str, robot: Robot, cpr: float, proc: str) -> tuple[pd.DataFrame, dict]:
     rows, traces = [], {}
     for _, st in run.steps.iterrows():
         k = int(st["step"])

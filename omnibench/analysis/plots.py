@@ -11,16 +11,19 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-from omnibench.errors import UserError  # noqa: E402
+from omnibench.errors import UserError
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 def _out(folder: str | Path, name: str) -> Path:
@@ -32,10 +35,10 @@ def _out(folder: str | Path, name: str) -> Path:
     return p / name
 
 
-def plot_sweep_fit(robot: Any, obs: Any, residuals: pd.DataFrame, folder: str | Path, name: str = "sweep_fit.png") -> Path:
+def plot_sweep_fit(robot: Robot, obs: Any, residuals: pd.DataFrame, folder: str | Path, name: str = "sweep_fit.png") -> Path:
     """Steady wheel speed vs duty: measured points and the model's steady speeds on a fine duty grid."""
-    from omnibench.analysis.observations import Observations
     from omnibench.analysis.fitting import predict_observations
+    from omnibench.analysis.observations import Observations
 
     sw = obs.sweep
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True, sharey=True)

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations, slope_fit
-from omnibench.model.geometry import inverse_kinematics
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import prepare, simulate_batch, stable_substeps
 

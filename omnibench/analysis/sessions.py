@@ -17,10 +17,14 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 from omnibench.analysis.observations import Observations
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 ITERATIONS = 2
 
@@ -46,7 +50,7 @@ def _unlogged(obs: Observations) -> list[str]:
     return [r for r in obs.run_ids if not math.isfinite(float(obs.runs.get(r, {}).get("V_batt", float("nan"))))]
 
 
-def fit_with_run_supplies(robot: Any, obs: Observations, free: Sequence[str], procedures: Sequence[str], *,
+def fit_with_run_supplies(robot: Robot, obs: Observations, free: Sequence[str], procedures: Sequence[str], *,
                           max_nfev: int = 30) -> SupplyFit:
     """Shared parameters `free` and each unlogged run's supply (module docstring). `obs` is not
     changed: the supplies are applied to a copy of its run facts."""

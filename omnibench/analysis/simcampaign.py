@@ -11,20 +11,31 @@ Telemetry at 100 Hz; physics at 1 ms.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import (
-    DEFAULT_TAPE_SE, ENERGY_COLUMNS, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, TRACE_COLUMNS,
-    Observations, timed_row,
+    DEFAULT_TAPE_SE,
+    ENERGY_COLUMNS,
+    RUN_COLUMNS,
+    STEADY_AVERAGE,
+    SWEEP_COLUMNS,
+    TRACE_COLUMNS,
+    Observations,
+    timed_row,
 )
 from omnibench.analysis.quantisation import encoder_slope_fit
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate_batch
+from omnibench.procedures import REGISTRY
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 TELEMETRY_DT = 0.01  # s
 PHYSICS_DT = 1e-3  # s
@@ -34,12 +45,11 @@ VOLTAGE_NOISE = 0.005  # V
 BATTERY_CURRENT_NOISE = 0.01  # A
 SWEEP_HOLD = 0.6  # s held per sweep level (the model is steady after ~30 ms upside down)
 
-_FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs",
-            "energy": "energy_trajectories"}
+_FILE_OF = {p.observes: p.name for p in REGISTRY}  # Observations table -> procedure
 
 
-def _plan(proc: str, robot: Any, files: Mapping[str, str | Path] | None):
-    from omnibench.bench.procedure import default_procedure_path, load_plan
+def _plan(proc: str, robot: Robot, files: Mapping[str, str | Path] | None):
+    from omnibench.procedures import default_procedure_path, load_plan
 
     path = (files or {}).get(proc) or default_procedure_path(_FILE_OF[proc])
     return load_plan(path, robot, expect=_FILE_OF[proc])
@@ -81,7 +91,7 @@ def plant_simulator(generator: str = "model") -> Callable:
     raise ValueError(f"unknown world generator {generator!r}; use model or independent")
 
 
-def simulated_observations(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
+def simulated_observations(robot: Robot, *, world_effects: Mapping[str, Mapping[str, float]] | None = None,
                            procedures: Sequence[str] = ("sweep", "forward", "lateral", "energy"),
                            seed: int = 0, current: bool = True, files: Mapping[str, str | Path] | None = None,
                            run_prefix: str = "sim", generator: str = "model") -> Observations:
@@ -95,7 +105,7 @@ def simulated_observations(robot: Any, *, world_effects: Mapping[str, Mapping[st
                              simulate=plant_simulator(generator))
 
 
-def simulate_campaign(robot: Any, *, world_effects: Mapping[str, Mapping[str, float]],
+def simulate_campaign(robot: Robot, *, world_effects: Mapping[str, Mapping[str, float]],
                       procedures: Sequence[str], seed: int, current: bool,
                       files: Mapping[str, str | Path] | None, run_prefix: str,
                       simulate: Callable = simulate_batch) -> Observations:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -24,6 +24,9 @@ from omnibench.analysis.observations import Observations
 from omnibench.analysis.predict import duty_timing, nrmse, replay
 from omnibench.errors import UserError
 from omnibench.model.scenario import Scenario
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 @dataclass
@@ -55,7 +58,7 @@ class EnergyValidation:
                 "mean_abs_error_pct": f(self.mean_abs_error_pct), "max_abs_error_pct": f(self.max_abs_error_pct)}
 
 
-def validate_energy(robot: Any, obs: Observations) -> EnergyValidation:
+def validate_energy(robot: Robot, obs: Observations) -> EnergyValidation:
     """Predicted vs measured energy for every energy-run step of `obs` (UserError if there is none)."""
     if not len(obs.energy):
         raise UserError("no energy runs given (run `omnibench energy` with the ammeter first)")

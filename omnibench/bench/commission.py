@@ -13,13 +13,16 @@ from __future__ import annotations
 import datetime as dt
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.bench.prompts import WHEELS
 from omnibench.bench.wiring import Wiring
 from omnibench.errors import UserError
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 JOG_DUTY = 0.15        #: low duty: the wheel turns visibly, nothing else happens
 JOG_S = 0.6            #: board seconds per jog
@@ -34,10 +37,10 @@ def console_ask(question: str, choices: list[str]) -> str:
     """Ask until one of `choices` is typed (no default; type-ahead dropped)."""
     import click
 
-    from omnibench.bench.prompts import _read
+    from omnibench.bench.prompts import read_answer
 
     while True:
-        text = _read(f"{question} [{'/'.join(choices)}]").lower()
+        text = read_answer(f"{question} [{'/'.join(choices)}]").lower()
         if text in choices:
             return text
         if text in ("stop", "quit"):
@@ -75,7 +78,7 @@ def _jog(board: Any, channel: int, duty: float) -> dict[str, Any]:
             "volts": float(np.mean(volts)) if volts else None}
 
 
-def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = print,
+def find_wiring(board: Any, robot: Robot, ask: Ask, echo: Callable[[str], None] = print,
                 confirm: Callable[[str], None] | None = None) -> Wiring:
     """Jog every channel, ask, check; the Wiring found, or UserError naming what is wrong."""
     from omnibench.bench.prompts import ask_yes
@@ -100,7 +103,7 @@ def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = 
         w = [x.lower() for x in WHEELS].index(wheel)
         sign = 1 if way == "forward" else -1
         if motor[w] is not None:
-            problems.append(f"{wheel.upper()} named for channels {motor[w][0]} and {ch + 1}")
+            problems.append(f"{wheel.upper()} named for channels {motor[w][0]} and {ch + 1}")  # type: ignore[index]
         motor[w] = (ch + 1, sign)
         counts = j["counts"]
         k = int(np.argmax(np.abs(counts)))
@@ -136,7 +139,7 @@ def find_wiring(board: Any, robot: Any, ask: Ask, echo: Callable[[str], None] = 
                   motor_current_sensor=cur_ok,
                   battery_current_sensor=bool(getattr(board, "has_battery_current", False)),
                   battery_voltage_V=round(v, 3),  # type: ignore[arg-type]
-                  date=dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
+                  date=dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"))
 
 
 def firmware_fixes(wiring: Wiring) -> list[str]:

@@ -22,7 +22,7 @@ def open_bench_board(url: str, timeout: float | None = None, ammeter: str | None
     """Open the board at `url` (serial device, `sim://...`) as a BenchBoard, with an optional
     SCPI ammeter on its own serial URL for the battery current; motors stopped on exit."""
     with LinkBoard.open(url, timeout=timeout, ammeter=ammeter) as board:
-        yield board
+        yield board  # type: ignore[misc]
 
 
 class LinkBoard:

@@ -17,14 +17,17 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from omnibench.bench.procedure import Step, World
 from omnibench.errors import UserError
 from omnibench.files import read_toml
 from omnibench.model.units import to_si
+from omnibench.procedures import Step, World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -46,9 +49,9 @@ def actions_for(current: World | None, target: World) -> list[Action]:
             acts.append(Action("flip", "Put the robot on the ground, wheels down", target))
     if current is None or current.wheel_set != target.wheel_set or current.wheel_mass != target.wheel_mass:
         if target.wheel_mass is not None:
-            from omnibench.bench.procedure import _fmt_masses
+            from omnibench.procedures import format_masses
 
-            what = f"wheel set {target.wheel_set!r} ({_fmt_masses(target.wheel_mass)})"
+            what = f"wheel set {target.wheel_set!r} ({format_masses(target.wheel_mass)})"
         else:
             what = f"wheel set {target.wheel_set!r}"
         acts.append(Action("wheels", f"Mount {what} on all four axles", target))
@@ -129,7 +132,7 @@ class ConsoleOperator:
 
     source = "console"
 
-    def __init__(self, robot: Any = None, mirror: Any = None) -> None:
+    def __init__(self, robot: Robot | None = None, mirror: Any = None) -> None:
         self.robot, self.mirror = robot, mirror
         self._sim = SimulatedOperator(mirror, noise=0.0) if mirror is not None else None
 
@@ -161,13 +164,13 @@ class ConsoleOperator:
         return "done"
 
     def measure(self, step: Step) -> Any:
-        from omnibench.bench.prompts import _read
+        from omnibench.bench.prompts import read_answer
 
         while True:
             if step.measure == "distance":
-                text = _read("Distance travelled, start mark to robot (e.g. 1.23 m)")
+                text = read_answer("Distance travelled, start mark to robot (e.g. 1.23 m)")
             else:
-                text = _read("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)")
+                text = read_answer("Displacement in the robot's start frame: forward, left (e.g. 0.52 m, 0.30 m)")
             try:
                 return self._parse(step, text)
             except UserError as exc:
@@ -185,10 +188,10 @@ class ConsoleOperator:
         """`question` (the tape disagrees with the encoders): a new reading, or None to keep."""
         import click
 
-        from omnibench.bench.prompts import _read
+        from omnibench.bench.prompts import read_answer
 
         while True:
-            text = _read(f"{question}: re-measure? Type the new reading, or keep")
+            text = read_answer(f"{question}: re-measure? Type the new reading, or keep")
             if text.lower() == "keep":
                 return None
             try:
@@ -234,7 +237,7 @@ class AnswersOperator:
                 self._value(s)
 
     def _value(self, step: Step) -> Any:
-        raw = self.data[step.measure][str(step.index)]
+        raw = self.data[step.measure][str(step.index)]  # type: ignore[index]
         where = f"{self.path}: [{step.measure}] {step.index}"
         if step.measure == "distance":
             return parse_distance(raw, where)

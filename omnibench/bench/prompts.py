@@ -10,9 +10,13 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 WHEELS = ("FL", "FR", "RL", "RR")
 YES = ("yes", "y")
@@ -30,14 +34,14 @@ def flush_typeahead() -> None:
         pass
 
 
-def _read(prompt: str) -> str:
+def read_answer(prompt: str) -> str:
     import click
 
     flush_typeahead()
     return click.prompt(prompt, default="", show_default=False, err=True).strip()
 
 
-def ask_yes(question: str, read: Callable[[str], str] = _read) -> None:
+def ask_yes(question: str, read: Callable[[str], str] = read_answer) -> None:
     """Ask until the person types yes (returns) or no (click.Abort: the run stops, resumable).
 
     An empty answer is never taken as either: it asks again."""
@@ -68,7 +72,7 @@ def _wheels(u: tuple[float, ...]) -> str:
     return ", ".join(f"{w} {x:+.2f}" for w, x in zip(WHEELS, u))
 
 
-def free_path(step: Any, robot: Any) -> tuple[float, float, float]:
+def free_path(step: Any, robot: Robot) -> tuple[float, float, float]:
     """Upper-bound path of a ground step with no load and no slip: (farthest distance from the
     start m, net forward m, net left m). Wheel speed u V_batt / k_e is the no-load speed, so the
     real robot stays within this distance."""
@@ -89,7 +93,7 @@ def free_path(step: Any, robot: Any) -> tuple[float, float, float]:
     return far, x, y
 
 
-def describe_motion(step: Any, robot: Any) -> str:
+def describe_motion(step: Any, robot: Robot) -> str:
     """One line: what moves in `step`, which way and how far (or for how long in the air)."""
     u0 = step.schedule[0][1]
     if step.world.mode == "upside_down":

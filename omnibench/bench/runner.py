@@ -36,13 +36,16 @@ import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.bench.operator import Action, actions_for
-from omnibench.bench.procedure import Plan, Step, World
-from omnibench.errors import BoardError, Terminated, UserError  # noqa: F401 - Terminated re-exported
+from omnibench.errors import BoardError, Terminated, UserError
+from omnibench.procedures import Plan, Step, World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: A tape reading this many no-slip tolerances away from the encoders is questioned at once.
 QUESTION_FACTOR = 3.0
@@ -148,7 +151,7 @@ class Runner:
     `echo(line)` prints one line for the engineer.
     """
 
-    def __init__(self, plan: Plan, robot: Any, board: Any, writer: Any, operator: Any, *,
+    def __init__(self, plan: Plan, robot: Robot, board: Any, writer: Any, operator: Any, *,
                  progress: Callable[[float, str], None] | None = None,
                  echo: Callable[[str], None] | None = None, read_timeout: float = 2.0,
                  view: Any = None) -> None:
@@ -194,7 +197,7 @@ class Runner:
             self._fed_board = t
 
     def _command(self, duties: Sequence[float]) -> None:
-        self._duties = tuple(float(u) for u in duties)
+        self._duties = tuple(float(u) for u in duties)  # type: ignore[assignment]
         self._applied_at(self.board.set_duties(self._duties), self._duties)
 
     def _stop(self) -> None:
@@ -494,11 +497,11 @@ class Runner:
         idx = np.flatnonzero(sel) if sel is not None else np.arange(len(d.t))
         cur = [d.cur[k] for k in idx if d.cur[k] is not None]
         for j in range(4):
-            out[f"i{j + 1}"] = float(np.mean([c[j] for c in cur])) if cur else None
+            out[f"i{j + 1}"] = float(np.mean([c[j] for c in cur])) if cur else None  # type: ignore[index]
         V = [d.V[k] for k in idx if d.V[k] is not None]
         I = [d.I[k] for k in idx if d.I[k] is not None]
-        out["V_batt"] = float(np.mean(V)) if V else None
-        out["I_batt"] = float(np.mean(I)) if I else None
+        out["V_batt"] = float(np.mean(V)) if V else None  # type: ignore[arg-type]
+        out["I_batt"] = float(np.mean(I)) if I else None  # type: ignore[arg-type]
         return out
 
     def _drive_from_start_mark(self, step: Step) -> tuple["StepData", float, float, float]:
@@ -625,9 +628,9 @@ def safe_stop(board: Any, attempts: int = 3) -> bool:
     return False
 
 
-def sigterm_as_interrupt() -> Callable[[], None]:
+def sigterm_as_interrupt() -> Callable[[], Any]:
     """Make SIGTERM behave like Ctrl-C for the duration of a run; returns a restore function."""
-    def handler(signum, frame):  # noqa: ARG001
+    def handler(signum, frame):
         raise Terminated()
 
     try:

@@ -15,9 +15,11 @@ import math
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from omnibench.bench.procedure import (
+from omnibench.errors import UserError
+from omnibench.procedures import (
+    LABELS,
     Plan,
     default_procedure_path,
     duty_limit,
@@ -25,14 +27,9 @@ from omnibench.bench.procedure import (
     stall_current,
     step_distance_bound,
 )
-from omnibench.errors import UserError
 
-LABELS = {
-    "upside_down_sweep": "III.i upside-down sweep",
-    "forward_runs": "III.ii forward/backward runs",
-    "lateral_runs": "III.iii lateral runs",
-    "energy_trajectories": "IV energy trajectories",
-}
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 
 def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
@@ -44,7 +41,7 @@ def load_robot_file(robot_file: str | Path | None) -> tuple[Any, str, str]:
     return robot, path.read_text(encoding="utf-8"), str(path) if robot_file else f"default ({path.name})"
 
 
-def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
+def plan_summary(plan: Plan, robot: Robot) -> dict[str, Any]:
     """What a dry run prints: steps, driving time bound, peak voltage and current, actions."""
     from omnibench.bench.operator import actions_for
 
@@ -77,7 +74,7 @@ def plan_summary(plan: Plan, robot: Any) -> dict[str, Any]:
     }
 
 
-def format_plan(plan: Plan, robot: Any) -> list[str]:
+def format_plan(plan: Plan, robot: Robot) -> list[str]:
     s = plan_summary(plan, robot)
     lines = [f"{LABELS[plan.procedure]} from {plan.path}: {s['steps']} steps"]
     world = None
@@ -295,7 +292,7 @@ def _wiring_record(board: Any) -> dict[str, Any] | None:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(w).items()} if w is not None else None
 
 
-def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measurement_noise: float | None,
+def _choose_operator(board: Any, plan: Plan, robot: Robot, answer_op: Any, measurement_noise: float | None,
                      who: str = "auto") -> Any:
     from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
 
@@ -313,7 +310,7 @@ def _choose_operator(board: Any, plan: Plan, robot: Any, answer_op: Any, measure
     return ConsoleOperator(robot)
 
 
-def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot_name: str, board: Any, *,
+def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, robot_name: str, board: Any, *,
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
                   measurement_noise: float | None, who: str = "auto",
@@ -363,13 +360,14 @@ def _run_on_board(procedure: str, plan: Plan, robot: Any, robot_text: str, robot
             raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}{need}") from None
         todo = list(plan.steps)
         echo(f"{LABELS[procedure]}: run {writer.path}")
-    status, reason = "failed", "unknown"
+    status: str = "failed"
+    reason: str | None = "unknown"
     disk_full = False
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
     lock.__enter__()
     log = RunLog(writer.path)  # log.txt: what the terminal said
     log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
-    restore: Callable[[], Any] = lambda: None
+    restore: Callable[[], Any] = lambda: None  # noqa: E731 - until SIGTERM is caught, nothing to restore
     try:
         restore = sigterm_as_interrupt()
         if resume is not None:  # a new run claimed its reserve as it was created

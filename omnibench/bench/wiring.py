@@ -18,9 +18,10 @@ with which sign, which encoder channel reads it and with which sign, and which s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from omnibench.bench.board import Telemetry
 from omnibench.errors import UserError

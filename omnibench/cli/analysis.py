@@ -11,7 +11,6 @@ from typing import Any
 import click
 
 from omnibench.cli.params import NonEmptyPath, check_out_folder
-
 from omnibench.errors import UserError
 from omnibench.runs.check import check_output, checked_runs
 
@@ -75,9 +74,7 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
     correlations and an identifiability verdict per parameter; write the model file."""
     from omnibench.analysis.fitting import fit, fit_per_wheel
     from omnibench.analysis.model_file import write_model
-    from omnibench.analysis.observations import Observations
-
-    from omnibench.analysis.observations import PROCEDURES
+    from omnibench.analysis.observations import PROCEDURES, Observations
 
     robot, _ = _robot(robot_file)
     good = checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True))
@@ -194,7 +191,7 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
         return
     click.echo(f"{'run':<40} {'step':>4} {'trajectory':<14} {'measured J':>11} {'model J':>11} {'error %':>8}")
     for _, r in val.table.iterrows():
-        click.echo(f"{str(r['run']):<40} {int(r['step']):>4} {str(r['trajectory']):<14} {r['measured_J']:>11.2f} "
+        click.echo(f"{r['run']!s:<40} {int(r['step']):>4} {r['trajectory']!s:<14} {r['measured_J']:>11.2f} "
                    f"{r['predicted_J']:>11.2f} {r['error_pct']:>+8.2f}")
     click.echo(f"mean absolute error {val.mean_abs_error_pct:.2f} %, largest {val.max_abs_error_pct:.2f} %")
     if fig:
@@ -228,7 +225,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)
     if not preds:
         raise UserError("the runs hold nothing to predict")
-    figs = []
+    figs: list[str] = []
     if plots is not None:
         from omnibench.analysis.plots import plot_prediction
 
@@ -254,7 +251,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
         click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "") + "):")
         for k, v in p.nrmse.items():
             click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
-    for f in figs:
+    for f in figs:  # type: ignore[assignment]
         click.echo(f"figure: {f}")
     if loro is not None:
         from omnibench.analysis.heldout_runs import table

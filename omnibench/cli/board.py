@@ -9,7 +9,6 @@ import time
 import click
 
 from omnibench.cli.params import FINITE
-
 from omnibench.errors import BoardError, UserError
 
 PORT_HELP = "Serial port or URL: /dev/ttyACM0, sim://?seed=1, socket://host:port, hwgrep://VID:PID."

@@ -9,7 +9,6 @@ from pathlib import Path
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.cli.plan import design_options
 from omnibench.errors import UserError
 
@@ -54,10 +53,9 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
 
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
-    from omnibench.bench.campaign import parse_stages, run_campaign
-    from omnibench.cli.stages import run_analysis
-
+    from omnibench.campaign.run import parse_stages, run_campaign
     from omnibench.cli import verbosity
+    from omnibench.cli.stages import run_analysis
 
     level = verbosity()
 
@@ -74,12 +72,12 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     stages = parse_stages(analysis)
     stage_options: dict[str, tuple[str, ...]] = {}
     if candidates is not None:
-        from omnibench.cli.diagnose import _candidates
+        from omnibench.cli.diagnose import parse_candidates
 
-        stage_options["diagnose"] = ("--candidates", ",".join(_candidates(candidates) or []))
+        stage_options["diagnose"] = ("--candidates", ",".join(parse_candidates(candidates) or []))
     if adaptive:
         from omnibench.analysis.design.space import Limits
-        from omnibench.bench.adaptive import run_adaptive_campaign
+        from omnibench.campaign.adaptive import run_adaptive_campaign
 
         if resume:
             raise UserError("--adaptive does not resume a campaign yet: start it in a new --out")

@@ -10,11 +10,10 @@ from pathlib import Path
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.errors import UserError
 
 
-def _candidates(text: str | None) -> list[str] | None:
+def parse_candidates(text: str | None) -> list[str] | None:
     if text is None:
         return None
     from omnibench.effects import EFFECTS
@@ -67,12 +66,11 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         raise UserError(f"--alpha {alpha}: give a significance level between 0 and 0.5, e.g. 0.001")
     if max_effects < 0:
         raise UserError(f"--max-effects {max_effects}: must be 0 or more")
-    names = _candidates(candidates)
+    names = parse_candidates(candidates)
     procs = _procedures(procedures)
     from omnibench.analysis.diagnosis import diagnose
     from omnibench.analysis.diagnosis.report import write_model, write_plots
     from omnibench.analysis.observations import Observations
-
     from omnibench.cli.params import check_out_folder
     from omnibench.runs.check import check_output, checked_runs
 
@@ -127,7 +125,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
 
 def _jsonable(x: object) -> object:
     try:
-        v = float(x)  # numpy scalars
+        v = float(x)  # type: ignore[arg-type]  # numpy scalars
     except (TypeError, ValueError):
         return str(x)
     return v if math.isfinite(v) else None

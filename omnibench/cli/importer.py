@@ -41,10 +41,9 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
     results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
     from omnibench.cli import verbosity
+    from omnibench.cli.params import check_out_folder
     from omnibench.runs import read_run
     from omnibench.runs.tfm import file_digest, import_tfm, parse_signs
-
-    from omnibench.cli.params import check_out_folder
 
     check_out_folder(out)
     sign_map = parse_signs(signs) if signs is not None else None

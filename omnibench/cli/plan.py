@@ -11,7 +11,6 @@ from typing import Any
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.errors import UserError
 
 
@@ -91,10 +90,9 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.model_file import load_model
     from omnibench.analysis.observations import Observations
-    from omnibench.bench.campaign import procedure_files
-    from omnibench.model import default_robot
-
+    from omnibench.campaign.run import procedure_files
     from omnibench.cli.params import check_out_folder
+    from omnibench.model import default_robot
     from omnibench.runs.check import checked_runs
 
     check_out_folder(out)

@@ -15,20 +15,11 @@ from typing import Any
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
+from omnibench.procedures import REGISTRY
 
-PROCEDURE_OF = {
-    "sweep": "upside_down_sweep",
-    "forward": "forward_runs",
-    "lateral": "lateral_runs",
-    "energy": "energy_trajectories",
-}
-
-HELP = {
-    "sweep": "III.i  Upside-down voltage sweep: steady wheel speed per duty, direction and wheel set.",
-    "forward": "III.ii  Forward/backward runs on the ground; the operator measures the distance (no-slip check).",
-    "lateral": "III.iii  Runs with lateral speed and payloads; the operator measures the displacement.",
-    "energy": "IV  Open-loop trajectories (square, circle, figure eight, spin) with the battery current logged.",
-}
+#: command -> procedure, and the command's help, from the procedures' registry
+PROCEDURE_OF = {p.command: p.name for p in REGISTRY}
+HELP = {p.command: p.help for p in REGISTRY}
 
 
 def _make(name: str) -> click.Command:

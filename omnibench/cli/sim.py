@@ -8,7 +8,6 @@ from urllib.parse import urlencode
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.errors import UserError
 
 

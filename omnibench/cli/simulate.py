@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-
 from omnibench.errors import UserError
 
 OUTPUT_COLUMNS = (

@@ -1,7 +1,7 @@
 """The campaign's analysis stages: the installed `omnibench fit`, `validate-energy` and `diagnose`
 commands run in process on the campaign's runs, with their JSON results kept for the report.
 
-This lives with the command line because it runs commands; omnibench.bench.campaign receives
+This lives with the command line because it runs commands; omnibench.campaign.run receives
 `run_analysis` as its `analyse` function and never imports the CLI.
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 
 import click
 
-from omnibench.bench.campaign import ANALYSIS
+from omnibench.campaign.run import ANALYSIS
 from omnibench.cli.progress import TeeStream, working
 from omnibench.errors import Terminated, UserError
 

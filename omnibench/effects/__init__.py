@@ -1,4 +1,4 @@
-"""Candidate physical effects (design.md §4) as model terms.
+"""Candidate physical effects (docs/effects.md) as model terms.
 
 Importing this package registers every effect with `omnibench.model.terms`, so the generated
 kernel can simulate any of them and a robot file may declare them under [effects.<name>].

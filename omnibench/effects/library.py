@@ -9,8 +9,8 @@ and which experiment separates it from look-alikes (`separates`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Mapping
 
 from omnibench.model.terms import Term, get_term
 

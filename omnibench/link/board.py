@@ -32,7 +32,8 @@ import math
 import threading
 import time
 from collections import deque
-from typing import Iterator, Protocol, Sequence
+from collections.abc import Iterator, Sequence
+from typing import Protocol
 
 import serial
 

@@ -8,8 +8,9 @@ Values are physical (SI, after `scale`) in `encode`/`decode`, raw integers in
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 from omnibench.link.framing import Crc, Deframer, FrameError, encode_frame
 from omnibench.link.spec import MessageSpec, ProtocolSpec, load_protocol

@@ -10,8 +10,8 @@ from __future__ import annotations
 import struct
 import tomllib
 from dataclasses import dataclass, field
-from functools import cached_property
 from fractions import Fraction
+from functools import cached_property
 from pathlib import Path
 
 from omnibench.errors import UserError

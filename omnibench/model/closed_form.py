@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-from omnibench.model.context import GRAVITY
 from omnibench.model.robot import Robot
 
 
@@ -17,8 +16,3 @@ def upside_down_steady_speed(robot: Robot, u: float, F_N: float) -> float:
     if abs(drive) <= load * robot.b:
         return 0.0
     return (drive - load * robot.b * math.copysign(1.0, u)) / (g * robot.k_e + load * robot.a)
-
-
-def wheel_weight(mass: float) -> float:
-    """Axle load (N) of a wheel of `mass` kg hanging upside down."""
-    return mass * GRAVITY

@@ -1,6 +1,6 @@
 """The paper's own terms: transmission friction, roller-axis friction, rolling resistance.
 
-Equations (design.md §2, paper eq. 8):
+Equations (docs/robot-file.md, the model, paper eq. 8):
   transmission  tau_fric_i = (1 + c F_Ni)(a phi_dot_i + b sign(phi_dot_i))      (opposes the wheel)
   roller axis   tau'_i     = -(1 + c_r F_Ni)(a_r sigma_i + b_r sign(sigma_i))   (along the roller)
   rolling       tau_r_i    = -F_Ni C_r r sign(phi_dot_i)                         (on the ground only)

@@ -1,7 +1,7 @@
 """Mecanum geometry: inverse kinematics R (phi_dot = R v) and roller slip S (sigma = S v).
 
 Wheel order 1 FL, 2 FR, 3 RL, 4 RR at body positions (s_i, d_i) with s = (L, L, -L, -L),
-d = (l, -l, l, -l) (design.md §2).
+d = (l, -l, l, -l) (docs/robot-file.md, the model).
 """
 
 from __future__ import annotations
@@ -32,8 +32,3 @@ def rotation(psi: float) -> np.ndarray:
     """R_psi: body frame to world frame rotation about z (3x3)."""
     c, s = np.cos(psi), np.sin(psi)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def body_mass_matrix(m: float, I_z: float, I_w: float, R: np.ndarray) -> np.ndarray:
-    """M_r + R^T M_w R: the constant body-frame form of the paper's H, kg / kg m^2."""
-    return np.diag([m, m, I_z]) + I_w * R.T @ R

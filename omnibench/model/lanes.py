@@ -19,7 +19,7 @@ import builtins
 import inspect
 import textwrap
 import types
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable
 
 LANE = "k"  # the lane variable of the generated kernel
 

@@ -9,9 +9,10 @@ import dataclasses
 import difflib
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, NoReturn
 
 from omnibench.errors import UserError
 from omnibench.files import read_toml
@@ -70,7 +71,7 @@ SECTIONS = sorted({spec.section for spec in FIELDS.values()} | {"effects", "firm
 
 @dataclass(frozen=True)
 class Robot:
-    """A four-mecanum-wheel robot (SI units; symbols as in the paper and design.md §2)."""
+    """A four-mecanum-wheel robot (SI units; symbols as in the paper and docs/robot-file.md, the model)."""
 
     name: str
     L: float
@@ -152,7 +153,7 @@ class _Reader:
     def __init__(self, path: str, text: str) -> None:
         self.path, self.text = path, text
 
-    def fail(self, section: str | None, key: str, message: str) -> None:
+    def fail(self, section: str | None, key: str, message: str) -> NoReturn:
         line = _line_of(self.text, section, key)
         where = f"{self.path}:{line}" if line else self.path
         where_key = f"[{section}] {key}" if section else key

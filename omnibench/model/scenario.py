@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Literal, Mapping
+from typing import Any, Literal
 
 Mode = Literal["ground", "upside_down"]
 
@@ -32,9 +33,9 @@ class Scenario:
 
 
 def operator_change(sc: Scenario, mode: str | None = None, payload: float | None = None,
-                    wheel_mass: tuple[float, float, float, float] | None = None) -> Scenario:
+                    wheel_mass: tuple[float, ...] | None = None) -> Scenario:
     """The scenario after an operator action (flip, payload, wheel swap); None keeps a setting."""
-    changes = {}
+    changes: dict[str, Any] = {}
     if mode is not None:
         changes["mode"] = mode
     if payload is not None:

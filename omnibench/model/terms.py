@@ -2,8 +2,16 @@
 
 A Term owns parameters (name, unit, default) and numba hook functions. The kernel
 (`omnibench.model.kernel`) is generated from the registry of all terms, so adding a new
-effect is: write its hooks, `register(Term(...))` in a module listed in TERM_MODULES.
-Nothing in the integrator or the fit changes.
+effect is: write its hooks, `register(Term(...))` in a module that a plugin entry point names
+(see PLUGIN_GROUP below). Nothing in the integrator or the fit changes.
+
+The registry is a plugin registry, as python-can's interfaces: the model's own terms
+(`model/friction.py`) are registered first; then every module named by an entry point of
+the group `omnibench.terms` is imported, and registers its terms as it is imported. omnibench's
+own effects register this way (`pyproject.toml`:
+`[project.entry-points."omnibench.terms"] effects = "omnibench.effects"`), so the model never
+imports them; another installed package may add terms the same way. The entry points are
+installation metadata: after changing them, install again (`pip install -e .`).
 
 Hook signatures (all arrays float64; `p` is the term's own parameter slice, `xs` its own
 states, `ctx` the read-only context of `omnibench.model.context`):
@@ -29,9 +37,11 @@ one element at a time (no slices, no `.shape`, no passing an array on) and retur
 
 from __future__ import annotations
 
+import functools
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
+from importlib.metadata import entry_points
 
 HOOKS = (
     "normal_force",
@@ -43,8 +53,10 @@ HOOKS = (
     "state_derivative",
 )
 
-# Modules that register terms. The kernel is generated from everything they register.
-TERM_MODULES = ["omnibench.model.friction", "omnibench.effects"]
+#: The model's own terms (the paper's friction and electrical model), registered first.
+CORE_MODULES = ("omnibench.model.friction",)
+#: Entry-point group of the term plugins: each entry names a module that registers terms on import.
+PLUGIN_GROUP = "omnibench.terms"
 
 
 @dataclass(frozen=True)
@@ -100,9 +112,20 @@ def register(term: Term) -> Term:
     return term
 
 
+@functools.cache
+def term_modules() -> tuple[str, ...]:
+    """The modules that register terms: the core ones, then the plugins (entry points of
+    PLUGIN_GROUP, by name). The kernel is generated from everything they register."""
+    plugins = sorted(entry_points(group=PLUGIN_GROUP), key=lambda ep: ep.name)
+    if not plugins:
+        raise RuntimeError(f"no term plugins are installed (entry points {PLUGIN_GROUP!r}, omnibench's own "
+                           "effects among them): install omnibench again (pip install -e .)")
+    return CORE_MODULES + tuple(ep.value for ep in plugins)
+
+
 def all_terms() -> list[Term]:
     """Every registered term, in a stable order (core terms first, then by module order)."""
-    for module in TERM_MODULES:
+    for module in term_modules():
         try:
             importlib.import_module(module)
         except ModuleNotFoundError as exc:

@@ -65,7 +65,7 @@ def to_si(value: object, unit: str) -> float:
         return number  # a bare number is SI
     try:
         q = ureg.Quantity(number, ureg.parse_units(unit_text.replace("^", "**")))
-    except Exception as exc:  # pint raises several types for unknown names
+    except Exception as exc:  # noqa: BLE001 - pint raises several types for unknown names
         raise ValueError(f"cannot read {value!r}: unknown unit {unit_text!r} ({type(exc).__name__})") from None
     try:
         out = float(q.to(target.units).magnitude)

@@ -293,7 +293,7 @@ def parse_info(doc: Any, run_dir: Path, text: str = "") -> RunInfo:
         seg = s.get("segment") if isinstance(s, dict) else None
         if check_value(seg, Num(0, 1e6, null=False, integer=True)):
             raise bad("segments", f"entry {i}: segment {_show(seg)} is not a whole number >= 0")
-        segments.append(int(seg))
+        segments.append(int(seg))  # type: ignore[arg-type]
     for i, a in enumerate(doc.get("operator_answers") or []):
         if not isinstance(a, dict):
             raise bad("operator_answers", f"entry {i} is not a table")

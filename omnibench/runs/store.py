@@ -35,7 +35,6 @@ import pandas as pd
 
 from omnibench import __version__
 from omnibench.errors import Terminated, UserError
-
 from omnibench.runs.record import (  # noqa: F401 - the format's names, re-exported
     FORMAT,
     FORMAT_VERSION,
@@ -60,7 +59,7 @@ FLUSH_INTERVAL_S = 0.5
 
 def utc_now() -> str:
     """ISO-8601 UTC time stamp with seconds, e.g. 2026-11-21T12:00:00Z."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
 def _json_default(obj: Any) -> Any:
@@ -131,7 +130,7 @@ def new_run_dir(out: Path, procedure: str) -> Path:
     out = Path(out)
     with named(out):
         out.mkdir(parents=True, exist_ok=True)
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%d-%H%M%S")
     base = out / f"{procedure}-{stamp}"
     path, n = base, 1
     while True:
@@ -163,7 +162,7 @@ class RunWriter:
         self.segment = segment
         self.counts_per_rev: float | None = metadata.get("counts_per_rev")
         sp = self.path / "samples.csv"
-        self._samples = self._events = self._steps = None  # type: ignore[assignment]
+        self._samples = self._events = self._steps = None
         self._reserve: Path | None = None
         try:
             with named(sp):

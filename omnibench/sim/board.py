@@ -66,7 +66,7 @@ class SimBoard:
 
             self.plant = IndependentPlant(self.robot, self.world.scenario(), self.world.dt)
         else:
-            self.plant = Plant(self.robot, self.world.scenario(), self.world.dt)
+            self.plant = Plant(self.robot, self.world.scenario(), self.world.dt)  # type: ignore[assignment]
         self.sensors = Sensors(self.world.sensors, self.robot.counts_per_rev, np.random.default_rng(seeds[1]))
         f = self.world.faults
         self.to_host = FaultyWire(f, np.random.default_rng(seeds[2]), f.direction in ("both", "to_host"))

@@ -15,7 +15,6 @@ import numpy as np
 from omnibench.model import Scenario, Simulator
 from omnibench.model.scenario import operator_change
 
-
 _single = threading.local()
 
 

@@ -43,7 +43,7 @@ class Serial(SerialBase):
 
     # ------------------------------------------------------------------ open / close
     def open(self) -> None:
-        if self.is_open:
+        if self.is_open:  # type: ignore[has-type]
             raise SerialException("Port is already open.")
         if self._port is None:
             raise SerialException("Port must be configured before it can be used.")

@@ -195,7 +195,7 @@ class PtyServer:
                     timeout = _TICK_S
                     if nxt is not None and not fast:
                         timeout = min(_TICK_S, max(0.0, (nxt - b.clock_us) * 1e-6 / self.world.speed))
-                r, _, _ = select.select(fds, [], [], timeout) if fds else (time.sleep(timeout), [], [])
+                r, _, _ = select.select(fds, [], [], timeout) if fds else (time.sleep(timeout), [], [])  # type: ignore[func-returns-value]
                 for fd in r or []:
                     if fd == p.master:
                         data = p.receive()
@@ -243,7 +243,7 @@ def run_server(world: World, *, status_file: str | None, ammeter: bool, out: Tex
     """Serve until SIGINT/SIGTERM: print the device path(s) on `out`, notes on `log`."""
     server = PtyServer(world, status_file=status_file, ammeter=ammeter, log=log, board=board)
 
-    def _stop(signum, frame) -> None:  # noqa: ARG001
+    def _stop(signum, frame) -> None:
         server.stop_event.set()
 
     signal.signal(signal.SIGTERM, _stop)

@@ -32,7 +32,7 @@ class Sensors:
         """Absolute quadrature counts for wheel angles `phi` (rad): floor, like a counter."""
         return np.floor((np.asarray(phi) + self.encoder_phase) * self.counts_per_rev / (2 * math.pi)).astype(np.int64)
 
-    def motor_current(self, i: np.ndarray) -> np.ndarray:
+    def motor_current(self, i: np.ndarray) -> np.ndarray | float:
         """Measured motor currents, A (zeros if the board has no such sensor)."""
         c = self.config
         if not c.motor_current_sensor:

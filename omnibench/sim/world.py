@@ -8,10 +8,10 @@ defaults are documented in docs/simulator.md.
 from __future__ import annotations
 
 import math
-
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from omnibench.errors import UserError
@@ -127,7 +127,7 @@ _FAULT_KEYS = {f.name for f in fields(FaultConfig)}
 
 
 def _sensors(base: SensorConfig, d: Mapping[str, Any], where: str) -> SensorConfig:
-    changes = {}
+    changes: dict[str, Any] = {}
     for k, v in d.items():
         if k not in _SENSOR_KEYS:
             raise UserError(f"{where}: unknown sensor setting {k!r}; known: {', '.join(sorted(_SENSOR_KEYS))}")

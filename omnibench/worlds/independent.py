@@ -34,14 +34,13 @@ for `omnibench.sim.plant.Plant` behind the simulated board's serial path (`sim:/
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
 from omnibench.model.context import GRAVITY
-from omnibench.model.geometry import inverse_kinematics, rotation, slip_matrix, wheel_positions
+from omnibench.model.geometry import inverse_kinematics, slip_matrix, wheel_positions
 from omnibench.model.scenario import Scenario, operator_change
 
 H_UP = 5e-4  # s, the fixed step with the wheels in the air (exact between events)

@@ -44,8 +44,9 @@ def test_fit_json_on_the_real_sweep_writes_model_and_plots(real_runs, tmp_path, 
 
 
 def test_validate_energy_json(tmp_path, truth, capsys):
-    from omnibench.analysis.model_file import write_model  # noqa: F401 (model = a plain robot file here)
     import tomli_w
+
+    from omnibench.analysis.model_file import write_model  # noqa: F401 (model = a plain robot file here)
 
     _write_energy_run(tmp_path / "runs", truth)
     model = tmp_path / "truth.toml"

@@ -4,7 +4,7 @@ re-estimate, with its evidence), and a command latency is found with its wheel o
 from __future__ import annotations
 
 from omnibench.analysis.diagnosis import diagnose
-from omnibench.analysis.diagnosis.campaign import REVEALING, SquareWave, CampaignSpec, campaign
+from omnibench.analysis.diagnosis.campaign import REVEALING, CampaignSpec, SquareWave, campaign
 
 
 def test_a_wrong_wheel_inertia_is_re_estimated_not_replaced_by_an_effect(omnibot):

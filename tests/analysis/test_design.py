@@ -11,10 +11,10 @@ from omnibench.analysis.design.space import Costs, Limits, Space, build_space
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.simcampaign import simulated_observations
-from omnibench.bench.campaign import procedure_files
-from omnibench.bench.procedure import load_plan
+from omnibench.campaign.run import procedure_files
 from omnibench.errors import UserError
 from omnibench.model import default_robot
+from omnibench.procedures import load_plan
 
 STEADY = {"min_hold": 0.2, "window": 0.3, "average": 0.3}
 TRUTH = dict(a=0.02, b=0.45, c=0.015)

@@ -8,7 +8,7 @@ import pytest
 from omnibench.analysis.design.optimal import cheapest_weights
 from omnibench.analysis.design.planner import _exchange
 from omnibench.analysis.design.space import Candidate, Costs
-from omnibench.bench.procedure import World
+from omnibench.procedures import World
 
 
 def test_one_parameter_buys_only_the_most_information_per_second():
@@ -83,7 +83,7 @@ def test_no_pair_of_a_plan_can_be_swapped_for_a_cheaper_one_that_still_meets_eve
     from omnibench.analysis.design.planner import MARGIN, plan, planning_names, target_se
     from omnibench.analysis.fitting import fit, param_value
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
 
     files = procedure_files(None)
     space = space_from_files(omnibot, files)

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import error_by_procedure, fit, sweep_linear_estimate
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.validate import validate_energy
 
 CAMPAIGN_PARAMS = ("a", "b", "c", "k_e", "R_a", "C_r", "a_r", "b_r", "c_r")
@@ -107,8 +107,9 @@ def test_each_large_groups_noise_weights_the_fit(robot, campaign, campaign_fit, 
     of freedom: the SEs come back as with honest errors, while weighting by the stated errors
     alone is consistent but leaves the group's information unused; group_s2 is still reported
     against the stated errors."""
-    import omnibench.analysis.fitting as fitting
     from dataclasses import replace
+
+    import omnibench.analysis.fitting as fitting
 
     lateral = campaign.lateral.copy()
     for j in range(1, 5):
@@ -136,9 +137,8 @@ def test_lateral_runs_of_a_world_whose_contacts_stick_fit_to_their_noise(sign_wi
     check that this test can fail. (On this draw b_r is 1.5 % low, 3.6 SE, at every width down to
     0.001 rad/s, and within 1 SE on the next draw: a smaller difference between the two physics
     that the width does not explain, hence the bound in per cent, not in SE.)"""
-    from omnibench.model import default_robot
-
     from omnibench.analysis import fitting
+    from omnibench.model import default_robot
 
     robot = default_robot()
     if sign_width_phi is not None:  # the fit as it was: that width, and every wheel speed used
@@ -164,7 +164,7 @@ def test_wheels_that_stick_in_a_lateral_run_are_left_out_of_the_fit_and_of_the_p
     from omnibench.analysis.design.information import candidate_information
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.fitting import MIN_GROUND_SPEED_WIDTHS
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()
@@ -192,8 +192,9 @@ def test_wheels_that_stick_in_a_lateral_run_are_left_out_of_the_fit_and_of_the_p
 def _sweep_residuals(levels, reps, rng, bias=0.0):
     """A sweep/omega residual frame: `reps` repeats of each level (rad/s) on one wheel, measured =
     model + unit noise (+ `bias` at the slowest level), speed = the measured value (as entered)."""
-    from omnibench.analysis.fitting import residual_structure  # noqa: F401  (the function under test)
     import pandas as pd
+
+    from omnibench.analysis.fitting import residual_structure  # noqa: F401  (the function under test)
 
     rows, step = [], 0
     for w in levels:

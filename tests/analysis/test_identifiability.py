@@ -1,4 +1,4 @@
-"""The fit says what a data set cannot separate (design.md §3), instead of printing a number for each."""
+"""The fit says what a data set cannot separate (docs/fit.md, "Identifiability verdicts"), instead of printing a number for each."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import fit
 from omnibench.analysis.observations import Observations
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.errors import UserError
 
 

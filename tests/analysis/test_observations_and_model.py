@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 from scipy.optimize import brentq
 
-from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.analysis.fitting import predict_observations
 from omnibench.analysis.model_file import load_model, write_model
 from omnibench.analysis.observations import Observations, slope_fit
+from omnibench.analysis.simcampaign import simulated_observations
 from omnibench.errors import UserError
 from omnibench.model.smooth import wheel_sign
 

@@ -12,8 +12,8 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 pexpect = __import__("pytest").importorskip("pexpect", reason="pexpect is not installed (pip install -e .[test])")
 

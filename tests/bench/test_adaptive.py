@@ -72,8 +72,8 @@ def test_the_current_pose_buys_only_what_the_measured_targets_need():
     from omnibench.analysis.design.space import Costs, Space
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.adaptive import _block_prediction, defer_unmeasured
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import _block_prediction, defer_unmeasured
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()
@@ -106,7 +106,7 @@ def test_a_target_the_plan_thinks_met_and_the_fit_does_not_is_aimed_lower():
     nothing; a target the fit meets, or the plan already sees unmet, is left as asked."""
     from types import SimpleNamespace
 
-    from omnibench.bench.adaptive import _calibrated
+    from omnibench.campaign.adaptive import _calibrated
 
     design = SimpleNamespace(se_before={"a": 1.0, "b": 1.0, "c": 3.0}, refused={})
     targets = {"a": (0.02, True), "b": (0.02, True), "c": (0.02, True)}
@@ -126,8 +126,8 @@ def test_the_forward_floor_pair_runs_first_where_the_robot_starts(tmp_path):
 
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.adaptive import adaptive_loop
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import adaptive_loop
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()
@@ -158,9 +158,9 @@ def test_the_lateral_runs_first_visit_is_the_plan_for_half_the_information():
 
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.design.space import Candidate
-    from omnibench.bench.adaptive import half_information_pilot
-    from omnibench.bench.procedure import World
+    from omnibench.campaign.adaptive import half_information_pilot
     from omnibench.errors import UserError
+    from omnibench.procedures import World
 
     ground, loaded = World("ground", "standard", None, 0.0), World("ground", "standard", None, 4.0)
     up = World("upside_down", "standard", (0.9,) * 4, 0.0)
@@ -194,9 +194,9 @@ def test_the_lateral_pilot_is_chosen_over_the_prior_points_not_at_the_robot_file
     import omnibench.analysis.design.robust as robust
     from omnibench.analysis.design.planner import Unit
     from omnibench.analysis.design.space import Candidate
-    from omnibench.bench.adaptive import pilot_over_prior
-    from omnibench.bench.procedure import World
+    from omnibench.campaign.adaptive import pilot_over_prior
     from omnibench.model import default_robot
+    from omnibench.procedures import World
 
     ground = World("ground", "standard", None, 0.0)
     cheap = Candidate("lateral", ground, heading=1.5708, speed=0.3, duration=1.5, robot_seconds=5.0, measurements=2)
@@ -231,7 +231,7 @@ def test_expected_repetitions_halve_when_a_lateral_design_is_doubled():
     from omnibench.analysis.design.robust import expected_repeats, expected_repeats_of, prior_points
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()
@@ -269,8 +269,8 @@ def test_a_model_that_misses_something_on_the_floor_gets_the_lab_grid_not_a_plan
     from omnibench.analysis.design.files import fixed_grid_units
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.adaptive import adaptive_loop
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import adaptive_loop
+    from omnibench.campaign.run import procedure_files
     from omnibench.effects import EFFECTS
     from omnibench.model import default_robot
 
@@ -317,8 +317,8 @@ def test_a_previous_campaign_plans_the_whole_upside_down_part_in_round_one(tmp_p
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.simcampaign import simulated_observations
-    from omnibench.bench.adaptive import adaptive_loop
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import adaptive_loop
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()
@@ -372,8 +372,8 @@ def test_the_labs_grid_after_the_floor_leaves_out_the_levels_the_floor_ran_at_it
     floor held its sweep levels at twice the file's averaging time, and those levels are not run
     again at the file's (the same duty, wheel set and direction pair)."""
     from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files
-    from omnibench.bench.adaptive import rest_of_lab_grid
-    from omnibench.bench.campaign import procedure_files
+    from omnibench.campaign.adaptive import rest_of_lab_grid
+    from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot
 
     robot = default_robot()

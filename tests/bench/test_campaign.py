@@ -120,7 +120,7 @@ def test_deadband_campaign_answers_with_the_diagnosed_model(capsys, tmp_path):
     declared fit's R_a is far off), with the energy error of both models."""
     import tomllib
 
-    from omnibench.bench.answer import with_se
+    from omnibench.campaign.answer import with_se
     from omnibench.model import default_robot, load_robot
 
     out = tmp_path / "campaign"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from omnibench.sim.testing import sigint_as_in_a_terminal
+from tests.simserver import sigint_as_in_a_terminal
 
 HERE = Path(__file__).parent
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import random
 import signal
 import subprocess
@@ -19,7 +18,7 @@ import pytest
 from omnibench.cli import main
 from omnibench.model import default_robot
 from omnibench.runs import read_run
-from omnibench.sim.testing import sigint_as_in_a_terminal, spawn_server
+from tests.simserver import sigint_as_in_a_terminal, spawn_server
 
 HERE = Path(__file__).parent
 PROC = HERE / "procedures"

@@ -7,7 +7,7 @@ import subprocess
 
 import pytest
 
-from omnibench.bench.html_report import write_html
+from omnibench.campaign.html_report import write_html
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 
@@ -88,7 +88,7 @@ def _campaign_results() -> dict:
 
 
 def test_report_opens_with_the_diagnosed_model(tmp_path) -> None:
-    from omnibench.bench.campaign import write_report
+    from omnibench.campaign.run import write_report
     from omnibench.model import default_robot
 
     text = write_report(_campaign_results(), tmp_path, default_robot()).read_text(encoding="utf-8")
@@ -103,7 +103,7 @@ def test_report_opens_with_the_diagnosed_model(tmp_path) -> None:
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install chromium)")
 def test_first_screen_of_the_html_report_holds_the_coefficient_table(tmp_path) -> None:
-    from omnibench.bench.campaign import write_report
+    from omnibench.campaign.run import write_report
     from omnibench.model import default_robot
 
     page = write_html(write_report(_campaign_results(), tmp_path, default_robot()))

@@ -6,8 +6,8 @@ import pytest
 from click.testing import CliRunner
 
 from omnibench.bench.operator import ConsoleOperator, actions_for, parse_displacement
-from omnibench.bench.procedure import Step, World
 from omnibench.errors import UserError
+from omnibench.procedures import Step, World
 
 
 def _step(measure):

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from omnibench.runs import read_run
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 from .person import Person
 

@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from omnibench.bench.procedure import (
+from omnibench.errors import UserError
+from omnibench.model import default_robot
+from omnibench.procedures import (
     PROCEDURES,
     body_velocity_duties,
     default_procedure_path,
     load_plan,
 )
-from omnibench.errors import UserError
-from omnibench.model import default_robot
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +42,7 @@ def test_sweep_covers_both_directions_and_wheel_sets(robot):
 
 
 def test_lateral_duties_follow_inverse_kinematics(robot):
-    # pure lateral motion to the left: FL and RR backwards, FR and RL forwards (design.md §2)
+    # pure lateral motion to the left: FL and RR backwards, FR and RL forwards (docs/robot-file.md, the model)
     u = body_velocity_duties(robot, np.array([0.0, 0.3, 0.0]))
     assert u[0] < 0 and u[3] < 0 and u[1] > 0 and u[2] > 0
     np.testing.assert_allclose(abs(u), robot.k_e * 0.3 / robot.r / robot.V_batt)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fakeboard import FakeBoard  # noqa: E402
+from fakeboard import FakeBoard
 
-from omnibench.bench.procedure import load_plan  # noqa: E402
-from omnibench.bench.runner import steady_state  # noqa: E402
-from omnibench.bench.session import _run_on_board, load_robot_file  # noqa: E402
-from omnibench.model import default_robot  # noqa: E402
-from omnibench.runs import read_run  # noqa: E402
+from omnibench.bench.runner import steady_state
+from omnibench.bench.session import _run_on_board, load_robot_file
+from omnibench.model import default_robot
+from omnibench.procedures import load_plan
+from omnibench.runs import read_run
 
 CPR = 980
 
@@ -43,7 +43,7 @@ def test_steady_state_accepts_constant_speed_and_rejects_a_ramp():
 
 
 def closed_form(robot, u, wheel_mass):
-    """Upside-down steady speed (rad/s), design.md §2 with F_N = wheel weight:
+    """Upside-down steady speed (rad/s), docs/robot-file.md, the model with F_N = wheel weight:
     eta k_t (u V - k_e w)/R_a = (1 + c m g)(a w + b wheel_sign(w)), the model's regularised sign
     wheel_sign(w) = tanh(w / eps) (eps = sign_width_phi)."""
     from scipy.optimize import brentq

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import os
+import termios
 import threading
 import time
-import termios
 import tty
 
 import pytest

@@ -146,8 +146,6 @@ def test_stribeck_grows_with_the_wheel_load_but_deadband_does_not(omnibot):
         scen = [Scenario(mode="upside_down", wheel_mass=(m,) * 4, effects=e) for m in (0.9, 1.9) for e in ({}, {name: params})]
         res = simulate_batch(omnibot, scen, [0.0], [[u] * 4], 0.6, record_every=100)
         w = res.signal("phi_dot1_free")[:, -1]
-        # torque the effect costs at each load = speed lost x the linear damping there
-        g = omnibot.eta * omnibot.k_t / omnibot.R_a
         loss[name] = [(w[0] - w[1]), (w[2] - w[3])]
         assert min(loss[name]) > 0.01
     # Stribeck: loss rises with load (1 + c_s F_N); deadband: the lost voltage is the same

@@ -12,7 +12,7 @@ from omnibench.bench.commission import commission
 from omnibench.bench.wiring import load_wiring
 from omnibench.sim.firmware.build import make
 from omnibench.sim.firmware.robot import load_robot
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 from .conftest import need
 

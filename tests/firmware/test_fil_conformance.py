@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 from tests.link import test_conformance as conformance
 
 

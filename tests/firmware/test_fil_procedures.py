@@ -17,7 +17,7 @@ import pytest
 from omnibench.link.codec import Codec
 from omnibench.model import default_robot
 from omnibench.runs import read_run
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 from omnibench.sim.world import World
 from tests.bench.test_end_to_end import FILES, PROC, check_run, closed_form, omnibench
 

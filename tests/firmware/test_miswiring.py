@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from omnibench.sim.firmware.build import make
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 from .conftest import need
 from .test_fil_conformance import wheel_problems

@@ -15,8 +15,7 @@ import pytest
 from omnibench.errors import BoardError, UserError
 from omnibench.link.board import Board
 from omnibench.sim import registry
-
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 WATCHDOG_RESOLUTION_S = 0.0005  #: how often a board checks its watchdog (the firmware: its 500 µs tick)
 

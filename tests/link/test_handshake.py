@@ -41,8 +41,8 @@ def _resetting_board(stop: threading.Event, log: dict) -> int:
         with conn, srv:
             while not stop.is_set():
                 now = time.monotonic()
-                if board is None and (last_rx is None and now - t0 > WAIT_S
-                                      or last_rx is not None and now - last_rx > SILENCE_S):
+                if board is None and ((last_rx is None and now - t0 > WAIT_S)
+                                      or (last_rx is not None and now - last_rx > SILENCE_S)):
                     board = firmware
                     log["handover"] = now - t0
                     t_boot = now
@@ -53,7 +53,7 @@ def _resetting_board(stop: threading.Event, log: dict) -> int:
                         conn.sendall(out)
                 try:
                     data = conn.recv(4096)
-                except (socket.timeout, BlockingIOError):
+                except (TimeoutError, BlockingIOError):
                     continue
                 if not data:
                     return

@@ -35,7 +35,7 @@ def _tcp_board(stop: threading.Event) -> int:
                     conn.sendall(out)
                 try:
                     data = conn.recv(4096)
-                except (socket.timeout, BlockingIOError):
+                except (TimeoutError, BlockingIOError):
                     continue
                 if not data:
                     return

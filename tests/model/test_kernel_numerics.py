@@ -1,6 +1,6 @@
 """Numerical guards for the generated kernel: every speed-up of the integrator must keep these.
 
-- upside down, each wheel settles at the closed-form speed of design.md §2 (1e-4 relative);
+- upside down, each wheel settles at the closed-form speed of docs/robot-file.md, the model (1e-4 relative);
 - on the ground with every paper term active, the battery energy is accounted for (0.1 %);
 - Heun and RK4 agree on a ground trajectory (documented tolerance below);
 - a batch of one, or a robot inside a mixed batch, reproduces `simulate` exactly;
@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from omnibench.model import Scenario, default_robot, simulate, simulate_batch
-from omnibench.model import kernel
+from omnibench.model import Scenario, default_robot, kernel, simulate, simulate_batch
 from omnibench.model.context import GRAVITY
 from omnibench.model.simulator import prepare, stable_substeps
 

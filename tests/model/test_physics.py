@@ -27,7 +27,7 @@ U_CMD = [
 
 
 def steady_speed_closed_form(robot, u: float, F_N: float) -> float:
-    """Upside-down steady state of design.md §2, written out here independently of the package."""
+    """Upside-down steady state of docs/robot-file.md, the model, written out here independently of the package."""
     g = robot.eta * robot.k_t / robot.R_a
     load = 1.0 + robot.c * F_N
     s = math.copysign(1.0, u)

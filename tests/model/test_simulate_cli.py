@@ -8,9 +8,8 @@ import sys
 import pandas as pd
 import pytest
 
-from omnibench.model.robot import DEFAULT_ROBOT_FILE
-
 from omnibench.model.closed_form import upside_down_steady_speed as steady_speed_closed_form
+from omnibench.model.robot import DEFAULT_ROBOT_FILE
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:

@@ -24,10 +24,10 @@ import shutil
 import signal
 import tempfile
 import tomllib
+from collections.abc import Callable
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import tomli_w
 
@@ -99,7 +99,7 @@ def run_cli(args: list[str], timeout: float = HANG_S) -> tuple[int | None, str]:
 
     err, out = io.StringIO(), io.StringIO()
 
-    def alarm(signum, frame):  # noqa: ARG001
+    def alarm(signum, frame):
         raise _Hang()
 
     old = signal.signal(signal.SIGALRM, alarm)

@@ -3,8 +3,6 @@ with the same steady speeds as on a clean link (issue 12)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from omnibench.runs import read_run
 from reliability.test_stale_samples import run_sweep
 

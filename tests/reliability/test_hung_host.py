@@ -12,7 +12,7 @@ import pytest
 import omnibench.bench.runner as runner_mod
 from omnibench.bench.session import run_command
 from omnibench.errors import BoardError
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 PROC = Path(__file__).parent / "procedures"
 WATCHDOG_S, RATE_HZ = 0.5, 240.0

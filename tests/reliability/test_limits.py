@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from omnibench import locks
-from omnibench.bench.procedure import check_limits, duty_limit, load_plan, stall_current
 from omnibench.errors import UserError
 from omnibench.model import default_robot
+from omnibench.procedures import check_limits, duty_limit, load_plan, stall_current
 from omnibench.runs import read_run
 from omnibench.runs.store import RunWriter
 from reliability.badinput import PROC, PROCEDURES, run_cli

@@ -10,7 +10,7 @@ import pytest
 
 from omnibench.errors import BoardError
 from omnibench.link.board import Board
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from omnibench.cli import main
 from omnibench.link.board import Board
 from omnibench.runs import read_run
 from omnibench.runs.store import RunWriter
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 PROC = Path(__file__).parent / "procedures" / "stall_sweep.toml"
 

@@ -10,7 +10,7 @@ import pytest
 
 from omnibench.bench.session import run_command
 from omnibench.runs import read_run
-from omnibench.sim.testing import HostStalls, spawn_server
+from tests.simserver import HostStalls, spawn_server
 
 PROC = Path(__file__).parent / "procedures"
 

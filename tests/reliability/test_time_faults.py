@@ -41,7 +41,7 @@ def test_hold_limit_is_enforced_on_the_host_clock(tmp_path, monkeypatch) -> None
     sys.path.insert(0, str(Path(__file__).parents[1] / "bench"))
     from fakeboard import FakeBoard
 
-    from omnibench.bench.procedure import load_plan
+    from omnibench.procedures import load_plan
     from omnibench.runs import RunWriter, read_run
 
     class Frozen(FakeBoard):

@@ -11,8 +11,7 @@ from omnibench.errors import BoardError
 from omnibench.link.board import Board
 from omnibench.link.codec import Codec
 from omnibench.sim import registry
-
-from omnibench.sim.testing import spawn_server
+from tests.simserver import spawn_server
 
 
 def _name() -> str:

@@ -11,7 +11,7 @@ import time
 import pytest
 
 from omnibench.link.board import Board
-from omnibench.sim.testing import sigint_as_in_a_terminal, spawn_server
+from tests.simserver import sigint_as_in_a_terminal, spawn_server
 
 
 @pytest.fixture(scope="module")

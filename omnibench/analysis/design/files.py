@@ -13,22 +13,34 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 import tomli_w
 
 from omnibench.analysis.design.planner import Unit
-from omnibench.analysis.design.space import (FORWARD_DUTIES, LATERAL_SPEEDS, SWEEP_DUTIES, Candidate, Limits, Space,
-                                              build_space, sweep_hold)
-from omnibench.bench.procedure import load_plan
+from omnibench.analysis.design.space import (
+    FORWARD_DUTIES,
+    LATERAL_SPEEDS,
+    SWEEP_DUTIES,
+    Candidate,
+    Limits,
+    Space,
+    build_space,
+    sweep_hold,
+)
+from omnibench.procedures import load_plan
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}
 COMMAND_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}
 
 
-def space_from_files(robot: Any, files: Mapping[str, str | Path], limits: Limits = Limits()) -> Space:
+def space_from_files(robot: Robot, files: Mapping[str, str | Path], limits: Limits = Limits()) -> Space:
     """The candidate steps the lab's procedure files allow (their wheel sets and payloads, their
     steady-state and settle settings; durations: the file's, twice and three times it; duties up
     to the highest the files use), within `limits`."""
@@ -74,7 +86,7 @@ def _blocks(units: list[Unit]) -> list[tuple[str, Any, float, list[Unit]]]:
     return out
 
 
-def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder: Path, robot: Any,
+def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder: Path, robot: Robot,
                      prefix: str = "", seed: int = 0) -> list[tuple[str, Path]]:
     """Write the units as procedure files in `folder` (in run order); returns [(procedure, path)].
     Each file is loaded back through the runner's own reader (limits checked) before returning.
@@ -127,7 +139,7 @@ def write_procedures(units: list[Unit], files: Mapping[str, str | Path], folder:
     return out
 
 
-def fixed_grid_units(robot: Any, files: Mapping[str, str | Path]) -> list[Unit]:
+def fixed_grid_units(robot: Robot, files: Mapping[str, str | Path]) -> list[Unit]:
     """The lab's own procedure files (the paper's fixed grid) as design units, in their run order,
     so the design's information and cost model can price them too."""
     out: list[Unit] = []
@@ -171,7 +183,7 @@ def _is_return(plan: Any, s: Any) -> bool:
     return prev is not None and abs((s.params["heading"] - prev.params["heading"]) - math.pi) < 1e-9
 
 
-def diagnostic_floor(robot: Any, files: Mapping[str, str | Path], space: Space) -> list[Candidate]:
+def diagnostic_floor(robot: Robot, files: Mapping[str, str | Path], space: Space) -> list[Candidate]:
     """Steps always run, whatever their information: the lab's sweep levels on its first wheel set
     (low duties show a deadband or Stribeck friction, the spread shows curvature: diagnosis needs
     them, an optimal design alone would keep only the extremes) and one forward pair at the lab's

@@ -17,22 +17,38 @@ current 0.01 A per sample averaged, tape 2 mm.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.design.space import Candidate
-from omnibench.analysis.fitting import (MIN_SWEEP_SPEED, REWEIGHT_MIN_DOF, FitResult, _Problem, creeping_ground_speeds,
-                                       param_scale)
+from omnibench.analysis.fitting import (
+    MIN_SWEEP_SPEED,
+    REWEIGHT_MIN_DOF,
+    FitResult,
+    _Problem,
+    creeping_ground_speeds,
+    param_scale,
+)
 from omnibench.analysis.observations import (
-    DEFAULT_TAPE_SE, RUN_COLUMNS, STEADY_AVERAGE, SWEEP_COLUMNS, Observations, drive_window, quantisation_se,
+    DEFAULT_TAPE_SE,
+    RUN_COLUMNS,
+    STEADY_AVERAGE,
+    SWEEP_COLUMNS,
+    Observations,
+    drive_window,
+    quantisation_se,
 )
 from omnibench.analysis.predictor import Predictor
 from omnibench.analysis.quantisation import quantised_slope
 from omnibench.model.context import GRAVITY
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 TELEMETRY_HZ = 100.0
 CURRENT_NOISE = 0.01  # A per telemetry sample (the simulated board; a real board's is read from its data)
@@ -71,9 +87,11 @@ def sweep_average(c: Candidate) -> float:
     return c.duration if c.duration > 0 else STEADY_AVERAGE
 
 
-def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations:
+def _rows(cands: Sequence[Candidate], robot: Robot, current: bool) -> Observations:
     floor = quantisation_se(robot.counts_per_rev)
-    sweep, forward, lateral = [], [], []
+    sweep: list[dict[str, Any]] = []
+    forward: list[dict[str, Any]] = []
+    lateral: list[dict[str, Any]] = []
     for k, c in enumerate(cands):
         rid = f"candidate-{k}"
         average = sweep_average(c)
@@ -82,7 +100,7 @@ def _rows(cands: Sequence[Candidate], robot: Any, current: bool) -> Observations
         for s, u in enumerate(c.duties(robot)):
             if c.procedure == "sweep":
                 for j in range(4):
-                    m = float(c.world.wheel_mass[j])
+                    m = float(c.world.wheel_mass[j])  # type: ignore[index]
                     sweep.append({"run": rid, "step": s, "wheel": j + 1, "u": u[j], "direction": float(np.sign(u[j])),
                                   "wheel_mass": m, "F_N": m * GRAVITY, "omega": 1.0, "omega_se": w_se,
                                   "current": 0.0 if current else np.nan, "current_se": i_se if current else np.nan,
@@ -155,7 +173,7 @@ _SENSITIVITIES: dict[tuple, _Sensitivity] = {}
 _SENSITIVITIES_KEPT = 8
 
 
-def _sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+def _sensitivity(robot: Robot, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
                  current: bool) -> _Sensitivity:
     key = (repr(robot), tuple(cands), tuple(names), current)
     hit = _SENSITIVITIES.pop(key, None)
@@ -167,7 +185,7 @@ def _sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale
     return hit
 
 
-def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
+def candidate_information(robot: Robot, cands: Sequence[Candidate], names: Sequence[str], *, current: bool = True,
                           group_s2: Mapping[str, float] | None = None,
                           group_dof: Mapping[str, float] | None = None) -> CandidateInformation:
     """Information each candidate adds about `names` at `robot`'s parameter values (each group's
@@ -193,7 +211,7 @@ def candidate_information(robot: Any, cands: Sequence[Candidate], names: Sequenc
     return CandidateInformation(names, scale, info, usable)
 
 
-def _simulate_sensitivity(robot: Any, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
+def _simulate_sensitivity(robot: Robot, cands: Sequence[Candidate], names: list[str], scale: np.ndarray,
                           current: bool) -> _Sensitivity:
     obs = _rows(cands, robot, current)
     pred = Predictor(obs, [p for p in ("sweep", "forward", "lateral") if len(obs.table(p))])
@@ -244,7 +262,7 @@ def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_
             pred.sigma[k] = expected_speed_se(f0[k], dur, counts_per_rev)
 
 
-def _value(robot: Any, name: str) -> float:
+def _value(robot: Robot, name: str) -> float:
     from omnibench.analysis.fitting import param_value
 
     return param_value(robot, name)

@@ -32,21 +32,32 @@ from __future__ import annotations
 import itertools
 import math
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from omnibench.analysis.design.information import (
-    PRIOR_SD, CandidateInformation, candidate_information, prior_information,
+    PRIOR_SD,
+    CandidateInformation,
+    candidate_information,
+    prior_information,
 )
 from omnibench.analysis.design.optimal import cheapest_weights
 from omnibench.analysis.design.space import (
-    ACTION_WORDS, Candidate, Costs, Space, sequence_actions,
+    ACTION_WORDS,
+    Candidate,
+    Costs,
+    Space,
+    sequence_actions,
 )
 from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, param_value
-from omnibench.bench.procedure import World
 from omnibench.errors import UserError
+from omnibench.procedures import World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: Fraction of each target the plan aims at (SE estimates scatter; aim a little below).
 MARGIN = 0.9
@@ -61,7 +72,7 @@ MAX_REPS = 8
 NULL_WEIGHT = 0.05
 
 
-def parse_targets(text: str, robot: Any) -> dict[str, tuple[float, bool]]:
+def parse_targets(text: str, robot: Robot) -> dict[str, tuple[float, bool]]:
     """'a=2%,b=0.01' -> {name: (value, relative)}: '2%' is relative to the parameter's value,
     a plain number an absolute SE in SI units. UserError naming the bad item."""
     out: dict[str, tuple[float, bool]] = {}
@@ -122,7 +133,7 @@ class Design:
     def operator_actions(self) -> int:
         return int(sum(self.actions.values()))
 
-    def table(self, robot: Any | None = None) -> str:
+    def table(self, robot: Robot | None = None) -> str:
         """Expected SE before and after the plan, against each target."""
         lines = [f"{'parameter':<22} {'value':>11} {'target SE':>11} {'SE now':>11} {'SE after':>11}  met"]
         for p, t in self.targets.items():
@@ -161,7 +172,7 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}" if math.isfinite(x) else "inf"
 
 
-def planning_names(robot: Any, current: bool = True) -> list[str]:
+def planning_names(robot: Robot, current: bool = True) -> list[str]:
     """Parameters the fit of a whole campaign estimates (the paper's seven, the motor constants
     the sweep's currents give, every declared effect's): all of them enter the information."""
     names = list(CORE) + (["k_e", "R_a"] if current else [])
@@ -187,7 +198,7 @@ def _null_params(M: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, flo
     out: dict[str, dict[str, float]] = {}
     zero = d <= 1e-300
     for i in np.flatnonzero(zero):
-        out[names[i]] = {names[i]: 1.0}
+        out[names[i]] = {names[i]: 1.0}  # type: ignore[call-overload]
     keep = np.flatnonzero(~zero)
     if not len(keep):
         return out
@@ -202,7 +213,8 @@ def _null_params(M: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, flo
     return out
 
 
-def _se(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
+def information_se(M: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Standard errors from the Fisher information M of the scaled parameters (x / scale), in x's units."""
     try:
         V = np.linalg.inv(M)
     except np.linalg.LinAlgError:
@@ -224,7 +236,7 @@ def world_order(worlds: list[World], start: World | None, costs: Costs) -> list[
     return best
 
 
-def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, bool]], space: Space,
+def plan(robot: Robot, res: FitResult | None, targets: Mapping[str, tuple[float, bool]], space: Space,
          costs: Costs = Costs(), *, current: bool = True, start: World | None = None,
          budget_seconds: float = math.inf, budget_actions: float = math.inf, margin: float = MARGIN,
          required: Sequence[Candidate] = (), info: CandidateInformation | None = None,
@@ -253,7 +265,7 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     scale = info.scale
     M0 = prior_information(res, names, scale, obs)
     data0 = M0 - np.eye(len(names)) / PRIOR_SD ** 2
-    se_before = dict(zip(names, _se(M0, scale)))
+    se_before = dict(zip(names, information_se(M0, scale)))
     for p in names:  # parameters the fit has not estimated yet have no SE of their own
         if res is None or p not in res.cov.index:
             se_before[p] = math.inf
@@ -347,14 +359,14 @@ def plan(robot: Any, res: FitResult | None, targets: Mapping[str, tuple[float, b
     order = [w for w in order if any(cands[k].world == w for k in chosen)]
     units = []
     for w in order:
-        ks = sorted((k for k in chosen if cands[k].world == w),
+        ks = sorted((k for k in chosen if cands[k].world == w),  # type: ignore[assignment]
                     key=lambda k: (cands[k].procedure, cands[k].duration, cands[k].duty, cands[k].heading,
                                    cands[k].speed))
         units += [Unit(cands[k], chosen[k], ranks[k]) for k in ks]
     robot_s = sum(u.candidate.robot_seconds * u.reps for u in units) + 2 * space.sweep_rest * len(
         _sweep_files(chosen, cands))
     acts = sequence_actions(order, sum(u.candidate.measurements * u.reps for u in units), start)
-    se_after = dict(zip(names, _se(M, scale)))
+    se_after = dict(zip(names, information_se(M, scale)))
     for p in names:
         if not np.isfinite(se_after[p]) or se_after[p] >= 0.999 * PRIOR_SD * scale[names.index(p)]:
             se_after[p] = se_before[p]  # nothing but the prior: no SE of its own

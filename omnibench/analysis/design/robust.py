@@ -17,15 +17,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: Prior points: each unmeasured parameter times and divided by this factor (one at a time).
 SPREAD = 2.0
 
 
-def prior_points(robot: Any, unmeasured: Sequence[str]) -> list[dict[str, float]]:
+def prior_points(robot: Robot, unmeasured: Sequence[str]) -> list[dict[str, float]]:
     """Values of the unmeasured parameters to plan at: the robot file's, and each one times and
     divided by SPREAD with the others at the file's (2 n + 1 points; an order of magnitude is all
     the lab is assumed to know before the first run that measures them)."""
@@ -58,7 +62,7 @@ def expected_repeats_of(res: Any, obs: Any, designs: Sequence[Sequence[Any]], ta
     candidate computed once per point (not once per design and point: each is a Jacobian of all
     the rows, the most of the pilot's planning time)."""
     from omnibench.analysis.design.information import candidate_information, prior_information
-    from omnibench.analysis.design.planner import _se, planning_names, target_se
+    from omnibench.analysis.design.planner import information_se, planning_names, target_se
     from omnibench.analysis.fitting import param_value
 
     cands = list(dict.fromkeys(u.candidate for d in designs for u in d))
@@ -73,6 +77,6 @@ def expected_repeats_of(res: Any, obs: Any, designs: Sequence[Sequence[Any]], ta
         tabs = target_se(targets, {p: param_value(r.robot, p) for p in targets})
         for d, design in enumerate(designs):
             M = M0 + sum((u.reps * ci.info[where[u.candidate]] for u in design), np.zeros_like(M0))
-            se = _se(M, ci.scale)
+            se = information_se(M, ci.scale)
             scores[d].append(max((se[names.index(p)] / tabs[p]) ** 2 for p in unmeasured if p in names))
     return [float(np.mean(sc)) if sc else math.inf for sc in scores]

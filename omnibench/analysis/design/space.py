@@ -13,12 +13,16 @@ from its robot file (max_duty, max_current); the floor from `Limits`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from omnibench.bench.procedure import World, body_velocity_duties, stall_current
+from omnibench.procedures import World, body_velocity_duties, stall_current
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: Operator actions and their default cost in seconds of the operator's (and robot's) time.
 DEFAULT_ACTION_COSTS = {"flip": 60.0, "wheels": 180.0, "payload": 20.0, "measure": 30.0}
@@ -82,7 +86,7 @@ class Candidate:
         return (f"lateral heading {math.degrees(self.heading):.0f} deg both ways at {self.speed:g} m/s "
                 f"for {self.duration:g} s, payload {self.world.payload:g} kg")
 
-    def duties(self, robot: Any) -> list[tuple[float, float, float, float]]:
+    def duties(self, robot: Robot) -> list[tuple[float, ...]]:
         """The duties of its two steps."""
         if self.procedure in ("sweep", "forward"):
             return [(self.duty,) * 4, (-self.duty,) * 4]
@@ -103,7 +107,7 @@ class Space:
     excluded: list[str] = field(default_factory=list)
 
 
-def duty_cap(robot: Any, limits: Limits) -> float:
+def duty_cap(robot: Robot, limits: Limits) -> float:
     """Largest duty magnitude allowed: the robot's max_duty, its max_current at stall, our cap."""
     by_current = robot.max_current * robot.R_a / robot.V_batt
     return min(robot.max_duty, by_current, limits.max_duty)
@@ -146,7 +150,7 @@ def sweep_hold(steady: Mapping[str, float], average: float) -> float:
     return steady.get("min_hold", 0.2) + max(steady.get("window", 0.3), average) + 0.05
 
 
-def build_space(robot: Any, *, wheel_sets: list[tuple[str, tuple[float, ...]]], payloads: list[float],
+def build_space(robot: Robot, *, wheel_sets: list[tuple[str, tuple[float, ...]]], payloads: list[float],
                 steady: Mapping[str, float], limits: Limits = Limits(), durations: tuple[float, ...] = (1.5, 3.0),
                 settle: float = 1.0, sweep_duties: tuple[float, ...] | None = None,
                 forward_duties: tuple[float, ...] | None = None,

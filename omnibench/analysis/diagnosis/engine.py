@@ -32,17 +32,18 @@ the same normalisation as `fitting.error_by_procedure`.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
-from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
-from omnibench.analysis.observations import Observations
 from omnibench.analysis.diagnosis.encoder_se import encoder_se
 from omnibench.analysis.diagnosis.robust_se import cluster_se
+from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
+from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import PHYSICS_DT, Predictor
 from omnibench.effects.library import Effect
 

@@ -19,8 +19,9 @@ A finding is significant when its p-value is below ALPHA divided by the number o
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats

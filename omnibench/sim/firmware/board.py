@@ -165,8 +165,8 @@ class FirmwareBoard:
             self.chip.set_adc_mv(5, zero + gain * i)
         if w.motor_current == "hall":
             cur = np.asarray(s.motor_current) + self.rng.normal(0.0, self.world.sensors.current_noise, 4)
-            for w, (_, _, sign) in enumerate(self.motor_map):  # the sensor sits in the driver's lead
-                self.chip.set_adc_mv(1 + w, zero + gain * sign * cur[w])  # A1..A4
+            for w, (_, _, sign) in enumerate(self.motor_map):  # type: ignore[assignment]  # the sensor sits in the driver's lead
+                self.chip.set_adc_mv(1 + w, zero + gain * sign * cur[w])  # type: ignore[call-overload, operator]  # A1..A4
 
     def _trace(self, text: str) -> None:
         """Debug trace of the rig (env OMNIBENCH_FIL_TRACE=file)."""

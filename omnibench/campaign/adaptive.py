@@ -30,18 +30,21 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 from omnibench.analysis.design.files import diagnostic_floor, fixed_grid_units, space_from_files, write_procedures
 from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_se
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
-from omnibench.bench.campaign import Analyse
-from omnibench.bench.procedure import World
+from omnibench.campaign.run import Analyse
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
+from omnibench.procedures import World
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 MAX_ROUNDS = 10
 PILOT = 0.5
@@ -139,7 +142,7 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
     return min(zip(options, repeats), key=lambda o: cost_of(o[0]) * o[1])[0]
 
 
-def pilot(units: list[Unit], have: set[str], required: list[Any] = ()) -> list[Unit]:
+def pilot(units: list[Unit], have: set[str], required: Sequence[Any] = ()) -> list[Unit]:
     """For procedures without data yet: their `required` candidates (the diagnostic floor) alone
     if the plan has any, else all their units at half the repetitions (a subset of the steps may
     not separate the targets the whole does). The pilot's fit measures the noise; the rest is
@@ -211,7 +214,7 @@ def _calibrated(design: Any, targets: Mapping[str, tuple[float, bool]], se: Mapp
     return replan(aims), aims
 
 
-def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[str, tuple[float, bool]],
+def defer_unmeasured(units: list[Unit], robot: Robot, res: Any, targets: Mapping[str, tuple[float, bool]],
                      refused: Mapping[str, str], se: Mapping[str, float], space: Space, costs: Costs, *,
                      current: bool, start: World | None, floor: list[Any], have: set[str], obs: Any,
                      budget_seconds: float, budget_actions: float,
@@ -247,7 +250,7 @@ def defer_unmeasured(units: list[Unit], robot: Any, res: Any, targets: Mapping[s
     return here + later, deferred
 
 
-def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
+def _fit(robot: Robot, obs: Any, previous: Any = None) -> Any:
     """The fit of all data so far, started from the previous round's values (else `robot`'s;
     None if it fails)."""
     from omnibench.analysis.fitting import fit
@@ -260,7 +263,7 @@ def _fit(robot: Any, obs: Any, previous: Any = None) -> Any:
         return None
 
 
-def adaptive_loop(robot: Any, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
+def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
                   execute: Callable[[list[tuple[str, Path]], int], Any], folder: Path, *,
                   costs: Costs = Costs(), limits: Limits = Limits(), current: bool = True,
                   budget_seconds: float = math.inf, budget_actions: float = math.inf,
@@ -441,14 +444,14 @@ def _plan_from_prior(prior: Any, targets: Mapping[str, tuple[float, bool]], spac
                 budget_seconds=budget_seconds, budget_actions=budget_actions, required=required, info=info)
 
 
-def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list[Unit],
+def _block_prediction(robot: Robot, res: Any, obs: Any, current: bool, block: list[Unit],
                       prior: Any = None) -> dict[str, float]:
     """Expected SE after only `block` runs (the design's information restricted to it; before any
     data at the previous campaign's values and noise when there is one)."""
     import numpy as np
 
     from omnibench.analysis.design.information import candidate_information, prior_information
-    from omnibench.analysis.design.planner import _se, planning_names
+    from omnibench.analysis.design.planner import information_se, planning_names
 
     noise = res if res is not None else prior
     model = noise.robot if noise is not None else robot
@@ -458,14 +461,14 @@ def _block_prediction(robot: Any, res: Any, obs: Any, current: bool, block: list
                                group_dof=noise.group_dof if noise is not None else None)
     M = prior_information(res, names, ci.scale, obs) + np.einsum("k,kij->ij", np.array([u.reps for u in block], float),
                                                              ci.info)
-    return dict(zip(names, _se(M, ci.scale)))
+    return dict(zip(names, information_se(M, ci.scale)))
 
 
 def _finite(v: float) -> float | None:
     return float(v) if v is not None and math.isfinite(v) else None
 
 
-def _value(robot: Any, p: str) -> float:
+def _value(robot: Robot, p: str) -> float:
     from omnibench.analysis.fitting import param_value
 
     return param_value(robot, p)
@@ -495,8 +498,8 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
-    from omnibench.bench.campaign import make_plots, procedure_files, write_report
     from omnibench.bench.session import load_robot_file, run_command
+    from omnibench.campaign.run import make_plots, procedure_files, write_report
     from omnibench.runs.store import json_ready
 
     out = Path(out)
@@ -577,13 +580,13 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     return results
 
 
-def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path], space: Space, costs: Costs,
+def design_summary(result: AdaptiveResult, robot: Robot, files: Mapping[str, Path], space: Space, costs: Costs,
                    current: bool) -> dict[str, Any]:
     """The rounds, and the fixed grid's expected SE against robot time (its information at the
     final fit, in the order the shipped procedures run) for comparison."""
     from omnibench.analysis.design.files import fixed_grid_units
     from omnibench.analysis.design.information import candidate_information, prior_information
-    from omnibench.analysis.design.planner import _se, planning_names
+    from omnibench.analysis.design.planner import information_se, planning_names
 
     targets = result.targets
     fixed = fixed_grid_units(robot, files)
@@ -603,7 +606,7 @@ def design_summary(result: AdaptiveResult, robot: Any, files: Mapping[str, Path]
             if u.candidate.procedure == "sweep" and u.candidate.world not in seen_rest:
                 seen_rest.add(u.candidate.world)
                 t += 2 * space.sweep_rest
-            se = dict(zip(names, _se(M, ci.scale)))
+            se = dict(zip(names, information_se(M, ci.scale)))
             curve.append({"robot_seconds": t, "se": {p: _finite(se[p]) for p in targets}})
         fixed_s = t
         fixed_a = sum(sequence_actions([u.candidate.world for u in fixed for _ in range(u.reps)],

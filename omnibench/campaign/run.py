@@ -15,20 +15,17 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from omnibench import __version__
-from omnibench.bench.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
-from omnibench.bench.procedure import PROCEDURES, default_procedure_path
+from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.errors import Terminated, UserError
 from omnibench.locks import holds_out_folder
+from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 
-COMMAND_OF = {
-    "upside_down_sweep": "sweep",
-    "forward_runs": "forward",
-    "lateral_runs": "lateral",
-    "energy_trajectories": "energy",
-}
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
+
 ANALYSIS = ("fit", "validate-energy", "diagnose")
 #: runs the analysis stages: (runs_dir, out, robot_file, echo, stages, *, into=None, earlier=None) -> results by
 #: stage name; `into` receives each stage as it ends, `earlier` holds an interrupted campaign's stages to keep
@@ -90,8 +87,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     ("status": "interrupted", "stopped_at"), and the KeyboardInterrupt goes on to the caller.
     With `resume`, analysis stages that finished before the interruption are kept when no run
     changed since."""
-    from omnibench.bench.procedure import load_plan
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
+    from omnibench.procedures import load_plan
 
     out = Path(out)
     files = procedure_files(procedures_dir)
@@ -122,7 +119,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
             (prior, status), = earlier.get(p, [(None, None)])
             if status == "complete":
                 echo(f"== {COMMAND_OF[p]}: kept (complete) {prior}")
-                results["procedures"][p] = completed_run_summary(p, prior, echo)
+                results["procedures"][p] = completed_run_summary(p, prior, echo)  # type: ignore[arg-type]
                 continue
             earlier_analysis = None  # the runs change: every analysis stage runs again
             where = COMMAND_OF[p]
@@ -166,15 +163,15 @@ def _interrupted_analysis(out: Path) -> dict[str, Any] | None:
     return data["analysis"]
 
 
-def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Callable[[str], None], *,
+def _finish(results: dict[str, Any], out: Path, robot: Robot, t0: float, echo: Callable[[str], None], *,
             summary: bool) -> None:
     """Plots, report.md, report.html and campaign.json for `results` (complete or interrupted)."""
-    from omnibench.bench.html_report import write_html
+    from omnibench.campaign.html_report import write_html
     from omnibench.runs.store import json_ready
 
     try:
         results["plots"] = make_plots(results, out, robot)
-    except Exception as exc:  # noqa: BLE001 - an interrupted campaign's partial data must not lose the report
+    except Exception as exc:  # an interrupted campaign's partial data must not lose the report
         if results.get("status") != "interrupted":
             raise
         results["plots"] = {}
@@ -186,7 +183,7 @@ def _finish(results: dict[str, Any], out: Path, robot: Any, t0: float, echo: Cal
     (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
                                        encoding="utf-8")
     if summary:
-        from omnibench.bench.summary import campaign_summary
+        from omnibench.campaign.summary import campaign_summary
 
         for line in campaign_summary(results):
             echo(line)
@@ -380,7 +377,7 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
 
 
 # --------------------------------------------------------------------------- plots
-def make_plots(results: dict[str, Any], out: Path, robot: Any) -> dict[str, str]:
+def make_plots(results: dict[str, Any], out: Path, robot: Robot) -> dict[str, str]:
     """PNG plots of each procedure's results (matplotlib, headless)."""
     import matplotlib
 
@@ -467,9 +464,9 @@ def _save(fig: Any, path: Path, plt: Any) -> str:
 
 
 # --------------------------------------------------------------------------- report
-def write_report(results: dict[str, Any], out: Path, robot: Any) -> Path:
+def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
     """report.md: what was run, what it found, what each analysis stage said."""
-    from omnibench.bench.session import LABELS, summary_lines
+    from omnibench.bench.session import summary_lines
     from omnibench.runs import read_run
 
     ports = sorted({str(read_run(r["run"]).metadata.get("port")) for r in results["procedures"].values()

@@ -115,7 +115,7 @@ class HostStalls:
         self._orig = LinkBoard.set_duties
         inject = self
 
-        def set_duties(board, duties):  # noqa: ANN001
+        def set_duties(board, duties):
             inject._sleep()
             t = inject._orig(board, duties)
             inject._sleep()

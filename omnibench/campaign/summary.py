@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from omnibench.bench.answer import campaign_answer
+from omnibench.campaign.answer import campaign_answer
 
 
 def _pct(v: Any) -> str:
@@ -16,7 +16,7 @@ def _pct(v: Any) -> str:
 
 
 def campaign_summary(results: dict[str, Any]) -> list[str]:
-    """Lines for the terminal from a campaign's results (see bench.campaign.run_campaign)."""
+    """Lines for the terminal from a campaign's results (see campaign.run.run_campaign)."""
     lines = ["", "== summary"]
     stages = results.get("analysis") or {}
     ans = campaign_answer(stages)
