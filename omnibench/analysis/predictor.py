@@ -329,7 +329,7 @@ class Predictor:
             self.simulated += len(sims)
             rob = [with_supply(robots[p], g.v_batt[k]) for p in sims for k in range(n)]
             res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
-                                 dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
+                                 dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps, adaptive=True)
             slopes = self._drive_slopes(g, res, shift, len(sims))
             for q, p in enumerate(sims):
                 for k, ex in enumerate(g.extract):
