@@ -92,6 +92,16 @@ def prepare(robot: Robot, scenario: Scenario, lay: Layout | None = None) -> Prep
     return dataclasses.replace(p, substeps_lambda=float(lam))
 
 
+def decay_rates_of(pairs: Sequence[tuple[Robot, Scenario]], lay: Layout | None = None) -> np.ndarray:
+    """`prepare(robot, scenario).substeps_lambda` of many pairs, in one kernel call."""
+    if not pairs:
+        return np.zeros(0)
+    lay = lay or layout()
+    preps = [_prepare(r, s, lay) for r, s in pairs]
+    stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
+    return decay_rates(*(stack(n) for n in ("x0", "rv", "P", "EN", "Rm", "Sm", "Minv", "M")), lay)
+
+
 def _prepare(robot: Robot, scenario: Scenario, lay: Layout) -> Prepared:
     """`prepare` without the stiffness (simulate_batch computes it for all sets at once)."""
     mass = robot.m + scenario.payload

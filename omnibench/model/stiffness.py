@@ -96,6 +96,36 @@ def ground_split(lam: np.ndarray, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -
     ground = np.flatnonzero(RV[:, kernel.RV["mode"]] == 0.0)
     if not ground.size:
         return RV
+    # the rates do not depend on the supply (zero duty at rest): rows that differ only in it,
+    # and rows seen before, are computed once
+    keep = np.ones(RV.shape[1], dtype=bool)
+    keep[[kernel.RV["V_batt"], kernel.RV["lam_base"], kernel.RV["lam_phi"], kernel.RV["lam_sigma"]]] = False
+    lam = np.asarray(lam, dtype=float)
+    keys = [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in (RV[:, keep], P, EN, Rm, Sm, M)) + lam[b].tobytes()
+            for b in ground]
+    todo: dict[bytes, int] = {}
+    for key, b in zip(keys, ground):
+        if key not in _SPLITS and key not in todo:
+            todo[key] = b
+    if todo:
+        rows = np.array(list(todo.values()))
+        parts = _ground_split(lam[rows], X0[rows], RV[rows], P[rows], EN[rows], Rm[rows], Sm[rows], Minv[rows],
+                              M[rows], lay)
+        if len(_SPLITS) + len(todo) > 100_000:
+            _SPLITS.clear()
+        for key, part in zip(todo, parts):
+            _SPLITS[key] = part
+    for key, b in zip(keys, ground):
+        RV[b, [kernel.RV["lam_base"], kernel.RV["lam_phi"], kernel.RV["lam_sigma"]]] = _SPLITS[key]
+    return RV
+
+
+_SPLITS: dict[bytes, np.ndarray] = {}
+
+
+def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+    """(lam_base, lam_phi, lam_sigma) (n, 3) of ground rows (`ground_split`)."""
+    ground = np.arange(RV.shape[0])
     iphi, isig = kernel.RV["sign_width_phi"], kernel.RV["sign_width_sigma"]
     take = lambda a: np.ascontiguousarray(a[ground])  # noqa: E731
     args = [take(a) for a in (X0, RV, P, EN, Rm, Sm, Minv, M)]
@@ -138,7 +168,4 @@ def ground_split(lam: np.ndarray, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -
             bound = base + lam_phi * f_phi + lam_sig * f_sig
             base = base + np.maximum(got - bound, 0.0) * 1.2
         del d
-    RV[ground, kernel.RV["lam_base"]] = base
-    RV[ground, kernel.RV["lam_phi"]] = np.maximum(lam_phi, 1e-300)
-    RV[ground, kernel.RV["lam_sigma"]] = lam_sig
-    return RV
+    return np.column_stack([base, np.maximum(lam_phi, 1e-300), lam_sig])
