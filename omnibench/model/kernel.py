@@ -711,41 +711,65 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                         r += 1
                     if n == n_steps:
                         break
-                    if rk4:
+                    if rk4 and adapt:
                         for e in range({n_int}):
                             for k in range(W):
                                 i = e * W + k
                                 acc[i] = dX[i]
                                 Xt[i] = X[i] + 0.5 * hs[k] * dX[i]
-                    else:
+                    elif rk4:
+                        for i in range({n_int} * W):
+                            acc[i] = dX[i]
+                            Xt[i] = X[i] + 0.5 * h * dX[i]
+                    elif adapt:
                         for e in range({n_int}):
                             for k in range(W):
                                 i = e * W + k
                                 acc[i] = dX[i]
                                 Xt[i] = X[i] + hs[k] * dX[i]
+                    else:
+                        for i in range({n_int} * W):
+                            acc[i] = dX[i]
+                            Xt[i] = X[i] + h * dX[i]
                 elif rk4:
                     if stage == 1:
-                        for e in range({n_int}):
-                            for k in range(W):
-                                i = e * W + k
+                        if adapt:
+                            for e in range({n_int}):
+                                for k in range(W):
+                                    i = e * W + k
+                                    acc[i] = acc[i] + 2.0 * dX[i]
+                                    Xt[i] = X[i] + 0.5 * hs[k] * dX[i]
+                        else:
+                            for i in range({n_int} * W):
                                 acc[i] = acc[i] + 2.0 * dX[i]
-                                Xt[i] = X[i] + 0.5 * hs[k] * dX[i]
+                                Xt[i] = X[i] + 0.5 * h * dX[i]
                     elif stage == 2:
-                        for e in range({n_int}):
-                            for k in range(W):
-                                i = e * W + k
+                        if adapt:
+                            for e in range({n_int}):
+                                for k in range(W):
+                                    i = e * W + k
+                                    acc[i] = acc[i] + 2.0 * dX[i]
+                                    Xt[i] = X[i] + hs[k] * dX[i]
+                        else:
+                            for i in range({n_int} * W):
                                 acc[i] = acc[i] + 2.0 * dX[i]
-                                Xt[i] = X[i] + hs[k] * dX[i]
-                    else:
+                                Xt[i] = X[i] + h * dX[i]
+                    elif adapt:
                         for e in range({n_int}):
                             for k in range(W):
                                 i = e * W + k
                                 X[i] += hs[k] / 6.0 * (acc[i] + dX[i])
-                else:
+                    else:
+                        for i in range({n_int} * W):
+                            X[i] += h / 6.0 * (acc[i] + dX[i])
+                elif adapt:
                     for e in range({n_int}):
                         for k in range(W):
                             i = e * W + k
                             X[i] += 0.5 * hs[k] * (acc[i] + dX[i])
+                else:
+                    for i in range({n_int} * W):
+                        X[i] += 0.5 * h * (acc[i] + dX[i])
                 if stage == n_stages - 1 and not ground:
                     for i in range(4 * W):
                         if w0[i] * X[10 * W + i] <= 0.0 and hold[i] == 0.0:
