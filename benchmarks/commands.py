@@ -29,6 +29,11 @@ are part of settle passes, so the rows do not add up):
     robust SEs       robust_se.cluster_se, encoder_se.encoder_se
     structure        diagnosis structure tests
 
+Measured (issue 34, one thread, CPU; fit and diagnose on main's clean-campaign runs, 2-core
+machine under load): main 4ba8eb8 -> the engine branch: fit 23.6 s -> 14.7 s, diagnose
+51.4 s -> 26.9 s (under the profiler: simulations 52.8 -> 27.5 s, screening 29.5 -> 14.0 s,
+the declared model's fit 24.0 -> 14.0 s), the deadband example 15:05 -> 6:53 (same finding).
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)

@@ -33,12 +33,23 @@ import pandas as pd
 
 from omnibench.analysis.observations import Observations, slope_fit
 from omnibench.model.scenario import Scenario
-from omnibench.model.simulator import prepare, simulate_batch, stable_substeps
+from omnibench.model.simulator import decay_rates_of, simulate_batch, stable_substeps
 
 SWEEP_HOLD = 0.3  # s simulated per sweep steady state
 PHYSICS_DT = 1e-3  # s
 RECORD_DT = 0.01  # s, model angle sampling for the drive-speed fit
-COAST = 0.5  # s simulated after the motors stop in a timed run (the robot is at rest well before)
+#: s simulated after the motors stop in a timed run: the robot is at rest well before (back-EMF
+#: braking, ~13 ms, and dry friction); on a clean campaign's forward and lateral runs the
+#: predictions at 0.1 s equal those at 0.5 s bit for bit (0.5 before issue 34: 20 % of a ground
+#: fit's simulation, at the full sub-step count of a robot at rest)
+COAST = 0.2
+#: Physics steps between the recorded samples of an energy run, whose energy is interpolated at
+#: the trace's first and last sample times. 1 before issue 34; 5 (recording every step was ~20 %
+#: of an energy simulation): on a clean campaign's four energy runs, the declared model and two
+#: with effects, the energies moved by 1e-13 J (the runs start and end at rest, where E grows
+#: linearly); while moving, linear interpolation over 5 ms is off by at most |dP/dt| h^2 / 8,
+#: ~3e-3 J at 1000 W/s, against ~0.6 J of noise.
+ENERGY_RECORD_EVERY = 5
 #: Predictions kept per Predictor (numbers, over all cached parameter sets): a fit asks again for
 #: parameter sets it has simulated (the start of each settle pass, the Jacobian at the solution,
 #: the next fit's start), and the kernel's numbers do not depend on the batch (kernel._groups)
@@ -61,6 +72,8 @@ class _Group:
     v_batt: list[float] = field(default_factory=list)  # V, logged supply per trajectory (NaN: the robot's)
     # after simulating: how to turn the recorded signals of trajectory k into entries
     extract: list[Any] = field(default_factory=list)
+    #: simulate to a whole number of record intervals (the last sample is then recorded)
+    round_end: bool = False
     _built: tuple | None = None
 
     def add(self, t_cmd, U, t_end: float, scen: Scenario, extract: Any, v_batt: float = float("nan")) -> None:
@@ -75,7 +88,11 @@ class _Group:
         """(t_cmd, U (B, K, 4), shift s, t_end s in the simulation's frame)."""
         if self._built is None:
             t_cmd, U, shift = union_schedule(self.schedules)
-            self._built = (t_cmd, U, shift, max(self.t_ends) + shift)
+            t_end = max(self.t_ends) + shift
+            if self.round_end:
+                rec = self.record_every * PHYSICS_DT
+                t_end = math.ceil(t_end / rec - 1e-6) * rec
+            self._built = (t_cmd, U, shift, t_end)
         return self._built
 
 
@@ -96,6 +113,8 @@ class Predictor:
         self.sigma = self.table["sigma"].to_numpy(dtype=float)
         self._cache: OrderedDict[tuple[str, int | None], np.ndarray] = OrderedDict()
         self._substeps: dict[tuple[str, ...], int] = {}
+        self._mode_substeps: dict[tuple[str, ...], int] = {}
+        self._up_substeps: int | None = None
         self.simulated = 0  # trajectory-group simulations run (a parameter set in one group; cache misses)
 
     # ------------------------------------------------------------------------ building
@@ -201,7 +220,8 @@ class Predictor:
                 continue
             t_cmd, U = self.commands(tr, r["run"])
             key = ("energy", r["run"], int(r["step"]))
-            g = self._group(key, 1)
+            g = self._group(key, ENERGY_RECORD_EVERY)
+            g.round_end = True
             t_last = float(tr["t"].iloc[-1])
             k = self._add(procedure="energy", run=r["run"], step=int(r["step"]), wheel=0, signal="energy", unit="J",
                           measured=r["measured_J"], sigma=np.nan, payload=r["payload"])
@@ -244,15 +264,26 @@ class Predictor:
         """Integrator sub-steps that keep every robot's friction regularisation stable."""
         key = tuple(repr(r) for r in robots)
         if key not in self._substeps:
-            lam = 0.0
-            for g in self.groups.values():
-                for s in {(sc.mode, sc.payload) : sc for sc in g.scen}.values():
-                    for r in robots:
-                        lam = max(lam, prepare(r, s).substeps_lambda)
+            pairs = [(r, s) for g in self.groups.values() for s in {(sc.mode, sc.payload): sc for sc in g.scen}.values()
+                     for r in robots]
+            lam = decay_rates_of(pairs)
+            up = np.array([s.mode == "upside_down" for _, s in pairs], dtype=bool)
             if len(self._substeps) > 4096:
                 self._substeps.clear()
-            self._substeps[key] = stable_substeps(lam, PHYSICS_DT)
+                self._mode_substeps.clear()
+            self._substeps[key] = stable_substeps(float(lam.max(initial=0.0)), PHYSICS_DT)
+            # upside down alone (exact sign, no regularised stiffness): the sweep's groups need
+            # not take the ground's sub-steps
+            self._mode_substeps[key] = stable_substeps(float(lam[up].max(initial=0.0)), PHYSICS_DT)
         return self._substeps[key]
+
+    def _group_substeps(self, g: "_Group", substeps: int | None) -> int | None:
+        """Sub-steps of one group: `substeps`, or fewer for a group that is all upside down
+        when `substeps` came from `substeps([robot])` of the call's first robot (the ground's
+        stiffness); the same for every parameter set of the call."""
+        if not substeps or self._up_substeps is None or any(sc.mode != "upside_down" for sc in g.scen):
+            return substeps
+        return min(substeps, self._up_substeps)
 
     def group_entries(self) -> dict[tuple, np.ndarray]:
         """Entry indices each simulation group predicts."""
@@ -271,6 +302,7 @@ class Predictor:
         same_as_first: {group key: robot indices} whose predictions in that group are known to
         equal robot 0's (a parameter the group does not depend on); they are not simulated."""
         keys = [(repr(r), substeps) for r in robots]
+        self._up_substeps = self._mode_substeps.get((keys[0][0],)) if robots else None
         out = np.full((len(robots), len(self.entries)), np.nan)
         skipped = {p for s in (same_as_first or {}).values() for p in s if p != 0}
         todo: list[int] = []  # first index of every parameter set not in the cache
@@ -329,7 +361,8 @@ class Predictor:
             self.simulated += len(sims)
             rob = [with_supply(robots[p], g.v_batt[k]) for p in sims for k in range(n)]
             res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
-                                 dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps)
+                                 dt=PHYSICS_DT, record_every=g.record_every,
+                                 substeps=self._group_substeps(g, substeps), adaptive=True)
             slopes = self._drive_slopes(g, res, shift, len(sims))
             for q, p in enumerate(sims):
                 for k, ex in enumerate(g.extract):

@@ -58,6 +58,7 @@ from omnibench.model.terms import HOOKS, Layout, layout
 RV_NAMES = (
     "mode", "mass", "I_w", "k_t", "k_e", "R_a", "eta", "V_batt", "I_0", "L", "l", "r",
     "sign_width_phi", "sign_width_sigma", "W", "FN1", "FN2", "FN3", "FN4",
+    "lam_base", "lam_phi", "lam_sigma",
 )
 RV = {name: k for k, name in enumerate(RV_NAMES)}
 NX_FIXED = 18
@@ -82,6 +83,24 @@ METHOD_HEUN, METHOD_RK4 = 0, 1
 # the step. Otherwise it breaks away (or reverses).
 EXACT_SIGN_WIDTH = 1e-9  # rad/s
 STICK_PROBE = 1e-6  # rad/s
+# Adaptive sub-steps on the ground (issue 34). The sub-step count that keeps an explicit step
+# stable is set by the largest decay rate of the speeds, and on the ground that rate comes from
+# the regularised signs' slope at zero speed (1/eps: wheel_sign, slip_sign). Away from zero the
+# slope falls (tanh: sech^2(x/eps); algebraic: (1 + (x/eps)^2)^-1.5), so a step whose speeds all
+# stay clear of zero is stable with fewer sub-steps. rv's lam_base, lam_phi, lam_sigma split the
+# rate at rest (stiffness.ground_split): the part that is not the signs', the wheel signs' part
+# and the roller signs' part; each physics step then takes, per trajectory, the fewest sub-steps
+# n with h lambda <= ADAPT_LIMITS[method] for
+#     lambda = lam_base + lam_phi max_j s_phi(phi_dot_j) + lam_sigma max_j s_sigma(sigma_j),
+# the slopes taken at each speed brought ADAPT_MARGIN x its change over the previous step closer
+# to zero (never more than the fixed count SUB). After the step the same bound is checked on the
+# speeds at its end (brought closer to zero by the step's own change; a speed that reached or
+# crossed zero counts at full slope); a trajectory that fails is stepped again from the saved
+# state with SUB sub-steps. Each trajectory chooses for itself (lanes of a group that need fewer
+# sub-steps are held still for the rest of the group's sub-steps), so its numbers still do not
+# depend on its batch. lam_phi = lam_sigma = 0 (the default) is the fixed count, bit for bit.
+ADAPT_LIMITS = {METHOD_HEUN: 1.8, METHOD_RK4: 2.5}
+ADAPT_MARGIN = 2.0
 # Trajectories per lane group: four doubles fill an AVX2 register. OMNIBENCH_KERNEL_WIDTH=1
 # gives the plain form (one trajectory per group, hooks as written): benchmarks/simulate.py
 # --compare-width measures what the lane form buys.
@@ -112,6 +131,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         ("Rm", 12), ("Sm", 12), ("Minv", 9), ("Mb", 9), ("ctx", C.CTX_SIZE), ("elec", C.ELEC_SIZE),
         ("FN", 4), ("u", 4), ("ucmd", 4), ("phid", 4), ("sig", 4), ("tau", 4), ("fr", 4), ("cur", 4),
         ("tmp", 4), ("gw", 4), ("w0", 4), ("a0", 4), ("chk", 4), ("hold", 4), ("acc_p", 4), ("fb", 3), ("tmp3", 3), ("psr", 1), ("cref", 1), ("sref", 1), ("Vb", 1), ("Ib", 1),
+        ("hl", 1), ("hs", 1), ("tb", 1), ("tl", 1), ("nk", 1), ("pspd", 8), ("Xs", nx),
         ("xs_none", 0),
     ]
     for k, term in enumerate(lay.terms):
@@ -199,7 +219,7 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
         return "\n".join([
         "# ---- derivative dX = f(Xt, ucmd, ts) of every lane; aux gets the auxiliary signals ----",
         L(f"""
-            ctx[{C.CTX_T}] = ts
+            ctx[{C.CTX_T}] = tl[0]
             ctx[{C.CTX_PSI}] = Xt[2]
             for j in range(3):
                 fb[j] = 0.0
@@ -379,11 +399,50 @@ def _source(lay: Layout, width: int = WIDTH) -> str:
     paper_entries = 1 + max([NX_FIXED - 1] + [NX_FIXED + k for k, t in enumerate(lay.terms) if t.core]
                             + [NX_FIXED + nt + lay.state_offset[k] + t.n_states - 1
                                for k, t in enumerate(lay.terms) if t.core and t.n_states])
+    # adaptive sub-steps on the ground (ADAPT_LIMITS): the rate bound of one lane from its
+    # wheel speeds ad_w and roller slips ad_s, each brought closer to zero by its change ad_dw, ad_ds
+    def rate(change: str) -> str:
+        return (
+            "ad_fp = 0.0\n"
+            "ad_fs = 0.0\n"
+            "for j in range(4):\n"
+            "    ad_w = Rm[3 * j] * X[3] + Rm[3 * j + 1] * X[4] + Rm[3 * j + 2] * X[5]\n"
+            "    ad_s = Sm[3 * j] * X[3] + Sm[3 * j + 1] * X[4] + Sm[3 * j + 2] * X[5]\n"
+            + textwrap.indent(textwrap.dedent(change).strip("\n"), "    ") + "\n"
+            f"    ad_xw = max(abs(ad_w) - {ADAPT_MARGIN!r} * abs(ad_dw), 0.0) / rv[{rv['sign_width_phi']}]\n"
+            f"    ad_xs = max(abs(ad_s) - {ADAPT_MARGIN!r} * abs(ad_ds), 0.0) / rv[{rv['sign_width_sigma']}]\n"
+            "    ad_th = math.tanh(ad_xw)\n"
+            "    ad_fp = max(ad_fp, 1.0 - ad_th * ad_th)\n"
+            "    ad_q = 1.0 + ad_xs * ad_xs\n"
+            "    ad_fs = max(ad_fs, 1.0 / (ad_q * math.sqrt(ad_q)))\n"
+            f"ad_lam = rv[{rv['lam_base']}] + rv[{rv['lam_phi']}] * ad_fp + rv[{rv['lam_sigma']}] * ad_fs\n"
+            "ad_n = float(min(max(math.ceil(ad_lam * dt / ad_limit), 1), substeps))\n")
+    adapt_choose = L(
+        f"if rv[{rv['lam_phi']}] + rv[{rv['lam_sigma']}] > 0.0:\n" + textwrap.indent(rate("""
+            ad_dw = ad_w - pspd[j]
+            ad_ds = ad_s - pspd[4 + j]
+            pspd[j] = ad_w
+            pspd[4 + j] = ad_s
+        """) + "if n > 0 and ad_n < nk[0]:\n    nk[0] = ad_n\n    hl[0] = dt / ad_n\n", "    "))
+    adapt_check = L(
+        "if nk[0] < substeps:\n" + textwrap.indent(rate("""
+            ad_w0 = Rm[3 * j] * Xs[3] + Rm[3 * j + 1] * Xs[4] + Rm[3 * j + 2] * Xs[5]
+            ad_s0 = Sm[3 * j] * Xs[3] + Sm[3 * j + 1] * Xs[4] + Sm[3 * j + 2] * Xs[5]
+            ad_dw = ad_w - ad_w0
+            ad_ds = ad_s - ad_s0
+            if ad_w * ad_w0 <= 0.0:
+                ad_dw = 1e300
+            if ad_s * ad_s0 <= 0.0:
+                ad_ds = 1e300
+        """) + "if ad_n > nk[0]:\n    nk[0] = substeps\n    hl[0] = h\n    ad_redo = True\n", "    "))
     groups = "\n\n\n".join(
         _GROUP_TEMPLATE.format(name=name, what=what, views=_indent("\n".join(views), 4), setup=_indent(setup, 4),
+                               adapt_choose=_indent(adapt_choose, 12), adapt_check=_indent(adapt_check, 14),
+                               ad_limit_heun=ADAPT_LIMITS[METHOD_HEUN], ad_limit_rk4=ADAPT_LIMITS[METHOD_RK4],
                                deriv=_indent(derivative(paper_only), 16), ground=C.MODE_GROUND, rk4=METHOD_RK4,
                                n_int=paper_entries if paper_only else nx, probe=repr(STICK_PROBE),
-                               e_stick=NX_FIXED + lay.index("transmission_friction"), i_w=rv["I_w"])
+                               e_stick=NX_FIXED + lay.index("transmission_friction"), i_w=rv["I_w"],
+                               lam_phi=rv["lam_phi"], lam_sigma=rv["lam_sigma"])
         for name, what, paper_only in (
             ("_group", "every term", False),
             ("_group_paper", "the paper's terms only (every effect is off in the group)", True)))
@@ -531,6 +590,13 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
     rk4 = method == {rk4}
     n_stages = 4 if rk4 else 2
     h = dt / substeps
+    ad_limit = {ad_limit_rk4} if rk4 else {ad_limit_heun}
+    # adaptive sub-steps (ADAPT_LIMITS) on the ground when a lane's rates are split
+    adapt = False
+    if ground:
+        for k in range(W):
+            if rv[{lam_phi} * W + k] + rv[{lam_sigma} * W + k] > 0.0:
+                adapt = True
     r = 0
     # the extra pass n == n_steps only evaluates the final state, for the last record
     for n in range(n_steps + 1):
@@ -545,8 +611,27 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
         for j in range(4):
             for k in range(W):
                 ucmd[j * W + k] = U[ub[k], ci, j]
-        for sub in range(n_sub):
+        # each lane's sub-steps nk and sub-step hl; a lane with fewer than the group's n_sub is
+        # held still (hs = 0) for the rest of them
+        for k in range(W):
+            nk[k] = n_sub
+            hl[k] = h
+        if adapt and n < n_steps:
+{adapt_choose}
+            n_sub = 0
+            for k in range(W):
+                n_sub = max(n_sub, int(nk[k]))
+            for i in range({n_int} * W):
+                Xs[i] = X[i]
+        r_start = r
+        ad_redo = True
+        while ad_redo:
+          ad_redo = False
+          for sub in range(n_sub):
             t = t0 + n * dt + sub * h
+            for k in range(W):
+                tb[k] = t0 + n * dt + sub * hl[k]
+                hs[k] = hl[k] if sub < nk[k] else 0.0
             # Stick-slip upside down (see EXACT_SIGN_WIDTH). Passes s = 0, 1 probe the wheels at
             # rest at the start of the step: those that stay stuck are held at zero speed through
             # the step (no motion, no power); passes 2 .. n_stages + 1 are the integrator's
@@ -569,7 +654,8 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                         if stage < 0:
                             continue
                         break
-                    ts = t if stage < 0 else t + h
+                    for k in range(W):
+                        tl[k] = tb[k] if stage < 0 else tb[k] + hl[k]
                     side = {probe} if s % 2 == 0 else -{probe}
                     for i in range({n_int} * W):
                         Xt[i] = X[i]
@@ -578,11 +664,13 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                             Xt[10 * W + i] = side
                     stage = -1  # no auxiliary signals from a probe
                 elif stage == 0:
-                    ts = t
+                    for k in range(W):
+                        tl[k] = tb[k]
                     for i in range({n_int} * W):
                         Xt[i] = X[i]
                 else:
-                    ts = t + 0.5 * h if rk4 and stage < 3 else t + h
+                    for k in range(W):
+                        tl[k] = tb[k] + 0.5 * hl[k] if rk4 and stage < 3 else tb[k] + hl[k]
                     if not ground:
                         # a stage that reached or crossed zero speed: the sign's jump is inside
                         # the step (an explicit step would bounce off it), so probe at its end
@@ -623,26 +711,62 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                         r += 1
                     if n == n_steps:
                         break
-                    if rk4:
+                    if rk4 and adapt:
+                        for e in range({n_int}):
+                            for k in range(W):
+                                i = e * W + k
+                                acc[i] = dX[i]
+                                Xt[i] = X[i] + 0.5 * hs[k] * dX[i]
+                    elif rk4:
                         for i in range({n_int} * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + 0.5 * h * dX[i]
+                    elif adapt:
+                        for e in range({n_int}):
+                            for k in range(W):
+                                i = e * W + k
+                                acc[i] = dX[i]
+                                Xt[i] = X[i] + hs[k] * dX[i]
                     else:
                         for i in range({n_int} * W):
                             acc[i] = dX[i]
                             Xt[i] = X[i] + h * dX[i]
                 elif rk4:
                     if stage == 1:
-                        for i in range({n_int} * W):
-                            acc[i] = acc[i] + 2.0 * dX[i]
-                            Xt[i] = X[i] + 0.5 * h * dX[i]
+                        if adapt:
+                            for e in range({n_int}):
+                                for k in range(W):
+                                    i = e * W + k
+                                    acc[i] = acc[i] + 2.0 * dX[i]
+                                    Xt[i] = X[i] + 0.5 * hs[k] * dX[i]
+                        else:
+                            for i in range({n_int} * W):
+                                acc[i] = acc[i] + 2.0 * dX[i]
+                                Xt[i] = X[i] + 0.5 * h * dX[i]
                     elif stage == 2:
-                        for i in range({n_int} * W):
-                            acc[i] = acc[i] + 2.0 * dX[i]
-                            Xt[i] = X[i] + h * dX[i]
+                        if adapt:
+                            for e in range({n_int}):
+                                for k in range(W):
+                                    i = e * W + k
+                                    acc[i] = acc[i] + 2.0 * dX[i]
+                                    Xt[i] = X[i] + hs[k] * dX[i]
+                        else:
+                            for i in range({n_int} * W):
+                                acc[i] = acc[i] + 2.0 * dX[i]
+                                Xt[i] = X[i] + h * dX[i]
+                    elif adapt:
+                        for e in range({n_int}):
+                            for k in range(W):
+                                i = e * W + k
+                                X[i] += hs[k] / 6.0 * (acc[i] + dX[i])
                     else:
                         for i in range({n_int} * W):
                             X[i] += h / 6.0 * (acc[i] + dX[i])
+                elif adapt:
+                    for e in range({n_int}):
+                        for k in range(W):
+                            i = e * W + k
+                            X[i] += 0.5 * hs[k] * (acc[i] + dX[i])
                 else:
                     for i in range({n_int} * W):
                         X[i] += 0.5 * h * (acc[i] + dX[i])
@@ -652,6 +776,15 @@ def {name}(bs, n_valid, X0, RV, P, EN_, Rm_, Sm_, Minv_, M, cmd_idx, U, t0, dt, 
                             chk[i] = 1.0
                         if chk[i] != 0.0:
                             probing = True
+          if adapt and n < n_steps:
+              # the bound again on the speeds at the end of the step: a lane that fails is
+              # stepped again from the saved state with the fixed count
+{adapt_check}
+              if ad_redo:
+                  for i in range({n_int} * W):
+                      X[i] = Xs[i]
+                  r = r_start
+                  n_sub = substeps
     for k in range(n_valid):
         for i in range(NX):
             XF[bs[k], i] = X[i * W + k]

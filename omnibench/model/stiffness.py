@@ -54,12 +54,14 @@ def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
     return lam
 
 
-def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout, offset: float = 0.0) -> np.ndarray:
+def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout, offset: float = 0.0,
+                 center: np.ndarray | None = None) -> np.ndarray:
+    """center: (rows, d) speeds to linearise about instead of rest."""
     d = len(dofs)
     n = rows.size * 2 * d  # each trajectory with each speed nudged up and down
     take = lambda a: np.ascontiguousarray(np.repeat(a[rows], 2 * d, axis=0))  # noqa: E731
     X = take(X0)
-    X[:, list(dofs)] = 0.0
+    X[:, list(dofs)] = 0.0 if center is None else np.repeat(center, 2 * d, axis=0)
     sign = np.zeros((2 * d, d))
     for j in range(d):
         sign[2 * j, j], sign[2 * j + 1, j] = 1.0, -1.0
@@ -76,3 +78,94 @@ def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout,
     mu = np.linalg.eigvals(A).astype(complex)
     z = 2.0 * mu / (1.0 + np.sqrt(1.0 + 2.0 * H_PROBE * mu))
     return np.real(-z).max(axis=1)
+
+
+#: Factor on the sign widths that takes the signs' slope out of the rate (ground_split).
+WIDE = 1e4
+#: Wheel speeds (in sign widths) where ground_split checks its bound.
+SPEEDS = (3.0, 10.0, 30.0, 100.0)
+
+
+def ground_split(lam: np.ndarray, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+    """RV with its lam_base, lam_phi, lam_sigma filled for ground trajectories (kernel's
+    adaptive sub-steps, kernel.ADAPT_LIMITS): the decay rate at rest without the signs' slope
+    (both widths x WIDE), and what the wheel signs and the roller signs each add to it. The
+    parts are scaled up, when they fall short, so that they add up to at least `lam` (the rate
+    at rest with both, `decay_rates`): the kernel's bound is never below the fixed count's."""
+    RV = np.array(RV, dtype=float, copy=True)
+    ground = np.flatnonzero(RV[:, kernel.RV["mode"]] == 0.0)
+    if not ground.size:
+        return RV
+    # the rates do not depend on the supply (zero duty at rest): rows that differ only in it,
+    # and rows seen before, are computed once
+    keep = np.ones(RV.shape[1], dtype=bool)
+    keep[[kernel.RV["V_batt"], kernel.RV["lam_base"], kernel.RV["lam_phi"], kernel.RV["lam_sigma"]]] = False
+    lam = np.asarray(lam, dtype=float)
+    keys = [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in (RV[:, keep], P, EN, Rm, Sm, M)) + lam[b].tobytes()
+            for b in ground]
+    todo: dict[bytes, int] = {}
+    for key, b in zip(keys, ground):
+        if key not in _SPLITS and key not in todo:
+            todo[key] = b
+    if todo:
+        rows = np.array(list(todo.values()))
+        parts = _ground_split(lam[rows], X0[rows], RV[rows], P[rows], EN[rows], Rm[rows], Sm[rows], Minv[rows],
+                              M[rows], lay)
+        if len(_SPLITS) + len(todo) > 100_000:
+            _SPLITS.clear()
+        for key, part in zip(todo, parts):
+            _SPLITS[key] = part
+    for key, b in zip(keys, ground):
+        RV[b, [kernel.RV["lam_base"], kernel.RV["lam_phi"], kernel.RV["lam_sigma"]]] = _SPLITS[key]
+    return RV
+
+
+_SPLITS: dict[bytes, np.ndarray] = {}
+
+
+def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+    """(lam_base, lam_phi, lam_sigma) (n, 3) of ground rows (`ground_split`)."""
+    ground = np.arange(RV.shape[0])
+    iphi, isig = kernel.RV["sign_width_phi"], kernel.RV["sign_width_sigma"]
+    take = lambda a: np.ascontiguousarray(a[ground])  # noqa: E731
+    args = [take(a) for a in (X0, RV, P, EN, Rm, Sm, Minv, M)]
+
+    def rate(f_phi: float, f_sig: float) -> np.ndarray:
+        rv = args[1].copy()
+        rv[:, iphi] *= f_phi
+        rv[:, isig] *= f_sig
+        return decay_rates(args[0], rv, *args[2:], lay)
+
+    base = rate(WIDE, WIDE)
+    lam_phi = np.maximum(rate(1.0, WIDE) - base, 0.0)
+    lam_sig = np.maximum(rate(WIDE, 1.0) - base, 0.0)
+    total = np.asarray(lam, dtype=float)[ground]
+    short = total - (base + lam_phi + lam_sig)
+    parts = lam_phi + lam_sig
+    grow = np.where((short > 0) & (parts > 0), 1.0 + short / np.where(parts > 0, parts, 1.0), 1.0)
+    base = np.where((short > 0) & (parts <= 0), total, base)
+    lam_phi, lam_sig = lam_phi * grow, lam_sig * grow
+    # The bound assumes every sign-like term has the robot's widths and forms (tanh on wheel
+    # speeds, algebraic on roller slip); a term with a wider sign of its own (Stribeck's
+    # max(eps, w_s / 2)) keeps more slope away from zero. Check the bound where the robot
+    # moves (wheels at SPEEDS x eps_phi, forward, sideways and turning) against the rate
+    # measured there, and raise lam_base by any shortfall.
+    rv = args[1]
+    eps_phi, eps_sig = rv[:, iphi], rv[:, isig]
+    r = rv[:, kernel.RV["r"]]
+    rows = np.arange(ground.size)
+    for x in SPEEDS:
+        for axis in range(3):
+            center = np.zeros((ground.size, 3))
+            center[:, axis] = x * eps_phi * r * (1.0 if axis < 2 else 1.0 / (rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]))
+            d = len(GROUND_DOFS)
+            nudge = NUDGE * np.minimum(eps_phi * r / (1.0 + rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]), eps_sig / 1.5)
+            got = _decay_rates(rows, GROUND_DOFS, nudge, *args, lay, center=center)
+            w = np.einsum("bjk,bk->bj", args[4], center)
+            s = np.einsum("bjk,bk->bj", args[5], center)
+            f_phi = np.max(1.0 - np.tanh(np.abs(w) / eps_phi[:, None]) ** 2, axis=1)
+            f_sig = np.max((1.0 + (s / eps_sig[:, None]) ** 2) ** -1.5, axis=1)
+            bound = base + lam_phi * f_phi + lam_sig * f_sig
+            base = base + np.maximum(got - bound, 0.0) * 1.2
+        del d
+    return np.column_stack([base, np.maximum(lam_phi, 1e-300), lam_sig])
