@@ -794,7 +794,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         initial={p: param_value(robot, p) for p in free},
         fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
         digest=fit_digest(pred, used, free),
-        date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        date=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
     )
 
 

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from floorsim import floor_logs, write_square_log  # noqa: E402
+from floorsim import floor_logs, write_square_log
 
-from omnibench.runs import read_run  # noqa: E402
-from omnibench.runs.tfm import DIRECTIONS, direction_of, import_tfm, kinematic_pattern  # noqa: E402
+from omnibench.runs import read_run
+from omnibench.runs.tfm import DIRECTIONS, direction_of, import_tfm, kinematic_pattern
 
 ALL = ("forward", "sideways", "rotation", "diagonal")
 

@@ -375,7 +375,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             # refit the top_k; when all of those fail, keep going down the ranking (up to MAX_FITS)
             fallback = not passing and top_k <= n_fitted < MAX_FITS
             leading = ratio >= RELATIVE_SCREEN * best_ratio
-            if (n_fitted < top_k and leading or fallback) and ratio >= SCREEN_FRACTION:
+            if ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION:
                 say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {max(n_lead, n_fitted + 1)}"
                     + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "") + ")")
                 try:
