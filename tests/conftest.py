@@ -31,9 +31,9 @@ def tfm_data() -> Path:
 # Scheduling under pytest-xdist (pyproject: `--dist loadgroup --no-loadscope-reorder`).
 #
 # A test is its own unit of work, so one file's dear tests (tests/analysis/test_diagnose.py) are
-# shared by both workers, except that the tests of a file that has a module-scoped fixture (a
-# served simulator, a firmware build, an imported campaign) go to one worker together, so the
-# fixture is made once. The units are handed out longest first (tests/durations.json, as
+# shared by both workers, except that the tests of a file that uses a module-scoped fixture (a
+# served simulator, imported runs) or a dear session one (a firmware build, a simulated campaign's
+# fit) go to one worker together, so the fixture is made once. The units are handed out longest first (tests/durations.json, as
 # measured: `--store-durations` rewrites it; a test it does not know counts 1 s), so that the
 # workers do not end with one long test left on one of them. The order changes no assertion.
 
@@ -57,18 +57,29 @@ def _plain(nodeid: str) -> str:
     return nodeid.rsplit("@", 1)[0] if nodeid.rfind("@") > nodeid.rfind("]") else nodeid
 
 
-def _shares_a_module_fixture(item) -> bool:
+# session fixtures cheap enough to make on each worker (the others: a simulated campaign and its
+# fit, firmware builds, keep their file on one worker, as --dist loadfile did)
+CHEAP_SESSION_FIXTURES = {"omnibot", "robot", "truth", "tfm_data", "real_runs"}
+
+
+def _shares_a_dear_fixture(item) -> bool:
     info = getattr(item, "_fixtureinfo", None)
     if info is None:
         return False
-    return any(defs and defs[-1].scope in ("module", "package", "class") and defs[-1].baseid
-               for defs in info.name2fixturedefs.values())
+    for name, defs in info.name2fixturedefs.items():
+        if not defs or not defs[-1].baseid:  # pytest's own (tmp_path_factory, ...)
+            continue
+        if defs[-1].scope in ("module", "package", "class"):
+            return True
+        if defs[-1].scope == "session" and name not in CHEAP_SESSION_FIXTURES:
+            return True
+    return False
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the xdist_group marks
 def pytest_collection_modifyitems(config, items):
     for item in items:
-        if item.get_closest_marker("xdist_group") is None and _shares_a_module_fixture(item):
+        if item.get_closest_marker("xdist_group") is None and _shares_a_dear_fixture(item):
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
     known = _known_durations()
 
