@@ -33,8 +33,6 @@ RANK = {unit: k for k, layer in enumerate(LAYERS) for unit in layer}
 
 #: Imports allowed against the layers, each with its reason. Add none.
 EXCEPTIONS: dict[tuple[str, str], str] = {
-    # issue 36 moves the command-timing schedules into the model; the lead removes this at merge
-    ("omnibench.model.simulator", "omnibench.effects.timing"): "issue 36",
     # pyserial's URL-handler registry is by package name: link/urls.py appends "omnibench.sim" to
     # serial.protocol_handler_packages and pyserial imports sim's `protocol_sim` when a sim:// URL is
     # opened. No import of the simulator in the link's code; the name is the plugin's registration.
@@ -86,10 +84,6 @@ PRIVATE_EXCEPTIONS: dict[tuple[str, str], str] = {
     # design's information uses the fit's residual problem; issue 34 rewrites fitting.py (one
     # fitting engine for fit, diagnose and design is issue 35's next step)
     ("omnibench.analysis.design.information", "omnibench.analysis.fitting._Problem"): "issue 34",
-    # issue 36's code, merged beside this test (make these public after the merge)
-    ("omnibench.analysis.diagnosis.loro", "omnibench.analysis.heldout_runs._run_error"): "issue 36",
-    ("omnibench.analysis.diagnosis.loro", "omnibench.analysis.heldout_runs._run_kind"): "issue 36",
-    ("omnibench.effects.timing", "omnibench.model.timing._integral"): "issue 36",
 }
 
 

@@ -584,7 +584,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     start = robot
     if "sweep" in procs and {"a", "b"} <= set(free):
         est = sweep_linear_estimate(robot, obs.sweep)
-        guess = {k: est[k] for k in ("a", "b", "c") if k in free}
+        guess: dict[str, float] = {k: est[k] for k in ("a", "b", "c") if k in free}
         if "c" in guess and guess["c"] <= 0:
             guess.pop("c")
         start = with_params(robot, guess)
@@ -621,7 +621,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     active = [p for p in free if p not in fixed]
     while active:
         idx = [free.index(p) for p in active]
-        r, _, nl = _null_analysis(J0[:, idx], active)
+        _, _, nl = _null_analysis(J0[:, idx], active)
         if not nl:
             break
         ratio, comb = nl[-1] if nl else (0, {})
@@ -745,8 +745,8 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
         if ratio < CONFOUND_TOL:
             v = Vt[-1]
-            names = active + [nu]
-            comb = {names[i]: float(v[i]) for i in range(len(names)) if abs(v[i]) > 0.2}
+            cols = active + [nu]
+            comb = {cols[i]: float(v[i]) for i in range(len(cols)) if abs(v[i]) > 0.2}
             for p in comb:
                 if p in active:
                     _add_condition(

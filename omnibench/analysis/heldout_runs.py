@@ -77,18 +77,18 @@ class RunError:
         return min(options, key=lambda o: o[0]) if options else (None, self.assumed_sketch, None)  # type: ignore[arg-type, return-value]
 
 
-def _run_kind(obs: Observations, run: str) -> str:
+def run_kind(obs: Observations, run: str) -> str:
     if (obs.sweep["run"] == run).any():
         return "sweep"
     return "floor trace" if obs.runs.get(run, {}).get("mode") == "ground" else "in-air trace"
 
 
-def _run_error(robot: Robot, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+def run_error(robot: Robot, obs: Observations, run: str) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """The run's held-out NRMSE and, for a trace, its wheel speeds (measured, predicted)."""
     from omnibench.analysis.predict import predict_runs
 
     pred = predict_runs(robot, obs.select(runs=[run]))[0]
-    if _run_kind(obs, run) == "sweep":
+    if run_kind(obs, run) == "sweep":
         return float(pred.nrmse.get("steady_speed", float("nan"))), None
     reps = [pred.traces[k] for k in sorted(pred.traces)]
     series = None
@@ -146,7 +146,7 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
 
     say = progress or (lambda s: None)
     runs = obs.run_ids
-    air = [r for r in runs if _run_kind(obs, r) != "floor trace"]
+    air = [r for r in runs if run_kind(obs, r) != "floor trace"]
     floor = [r for r in runs if r not in air]
     folds: list[tuple[str, list[str]]] = [(r, [x for x in air if x != r]) for r in air]
     if floor:
@@ -156,18 +156,18 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
         if not train_runs:
             continue
         train = obs.select(runs=train_runs)
-        err = RunError(held, _run_kind(obs, held), "steady speed" if _run_kind(obs, held) == "sweep" else "wheel speed")
+        err = RunError(held, run_kind(obs, held), "steady speed" if run_kind(obs, held) == "sweep" else "wheel speed")
         alts = _timing_alternatives(obs, held)
         if alts:
             err.assumed_sketch = str(obs.runs[held].get("timing_sketch", err.assumed_sketch))
         for label, model in models.items():
             say(f"{held} (held-out run {k + 1} of {len(folds)}): fitting {label} to {len(train_runs)} other run(s)")
             fitted = fit_physics(model, train, max_nfev)
-            err.nrmse[label], series = _run_error(fitted, obs, held)
+            err.nrmse[label], series = run_error(fitted, obs, held)
             if series is not None:
                 err.series[label] = series
             for sketch, alt_obs in alts.items():
-                err.alternatives.setdefault(sketch, {})[label], s_alt = _run_error(fitted, alt_obs, held)
+                err.alternatives.setdefault(sketch, {})[label], s_alt = run_error(fitted, alt_obs, held)
                 if s_alt is not None:
                     err.alt_series.setdefault(sketch, {})[label] = s_alt
         held_tr = baseline.traces(obs, [held]) if err.kind == "in-air trace" else []

@@ -169,7 +169,9 @@ def predict_runs(robot: Any, obs: Observations, *, profile_timing: bool = False)
             rp.firmware = str(alt.get("sketch", "?"))
             options.append(rp)
         key = "wheel_speed" if "wheel_speed" in first.nrmse else next(iter(first.nrmse), None)
-        scores = {o.firmware: float(o.nrmse.get(key, float("nan"))) for o in options}
+        # no signal scored (key None): every option scores NaN
+        scores = {o.firmware: float(o.nrmse.get(key, float("nan"))) if key is not None else float("nan")
+                  for o in options}
         best = min(options, key=lambda o: (not math.isfinite(scores[o.firmware]), scores[o.firmware]))
         best.firmware_profiled = scores
         out.append(best)

@@ -26,13 +26,13 @@ import math
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations, slope_fit
-from omnibench.model.scenario import Scenario
+from omnibench.model.scenario import Mode, Scenario
 from omnibench.model.simulator import decay_rates_of, simulate_batch, stable_substeps
 
 SWEEP_HOLD = 0.3  # s simulated per sweep steady state
@@ -150,12 +150,12 @@ class Predictor:
     def _build_sweep(self, df: pd.DataFrame) -> None:
         for (run, step), rows in df.groupby(["run", "step"], sort=False):
             U = np.zeros(4)
-            masses = [None] * 4
+            masses: list[float | None] = [None] * 4
             for _, r in rows.iterrows():
                 U[int(r["wheel"]) - 1] = r["u"]
                 masses[int(r["wheel"]) - 1] = float(r["wheel_mass"])
             fill = next((m for m in masses if m is not None), 1.0)
-            masses = tuple(m if m is not None else fill for m in masses)
+            wheel_mass = tuple(m if m is not None else fill for m in masses)
             g = self._group(("sweep",), int(round(SWEEP_HOLD / PHYSICS_DT)))
             idx = []
             for _, r in rows.iterrows():
@@ -169,7 +169,7 @@ class Predictor:
                     k = self._add(signal="current", unit="A", measured=r["current"], sigma=r["current_se"], **meta)
                     idx.append(("current", j, k))
             vb = rows["V_batt"].to_numpy(dtype=float) if "V_batt" in rows else np.full(1, np.nan)
-            g.add([0.0], U[None, :], SWEEP_HOLD, self.scenario(run, mode="upside_down", wheel_mass=masses),
+            g.add([0.0], U[None, :], SWEEP_HOLD, self.scenario(run, mode="upside_down", wheel_mass=wheel_mass),
                   ("sweep", idx), float(np.nanmedian(vb)) if np.isfinite(vb).any() else self.supply(run))
 
     def _build_timed(self, df: pd.DataFrame, proc: str) -> None:
@@ -430,10 +430,10 @@ class Predictor:
             ts = ex[2]
             ph = [np.interp(ts + shift, res.t, res.signal(f"phi{j}")[b]) for j in range(1, 5)]
             dts = np.diff(ts)
-            w = [np.diff(p) / dts for p in ph]
+            rates = [np.diff(p) / dts for p in ph]
             m = len(dts)
             for n, (_, j, k) in enumerate(ex[1]):
-                out[k] = w[j - 1][n % m]
+                out[k] = rates[j - 1][n % m]
 
 
 #: How a logged duty relates to its sample time.
@@ -453,9 +453,10 @@ def run_commands(obs: Observations, run: str, tr: pd.DataFrame) -> tuple[np.ndar
     return (t_cmd + off if math.isfinite(off) else t_cmd), U
 
 
-def run_mode(obs: Observations, run: str) -> str:
-    """Where a trace-replay run was: 'upside_down' (wheels in the air, the default) or 'ground'."""
-    return str(obs.runs.get(run, {}).get("mode", "upside_down"))
+def run_mode(obs: Observations, run: str) -> Mode:
+    """Where a trace-replay run was: 'upside_down' (wheels in the air, the default) or 'ground'
+    (as recorded: the run schema allows only these two, and Scenario checks the value again)."""
+    return cast(Mode, str(obs.runs.get(run, {}).get("mode", "upside_down")))
 
 
 def with_supply(robot: Any, v_batt: float) -> Any:

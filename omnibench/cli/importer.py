@@ -78,7 +78,7 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
             click.echo(str(path))
             continue
         ft = run.metadata["firmware_timing"]
-        where = run.metadata.get("mode") + (f", driving {run.metadata['direction']}" if run.metadata.get("direction") else "")
+        where = run.metadata["mode"] + (f", driving {run.metadata['direction']}" if run.metadata.get("direction") else "")
         if ft.get("sketch") == "unknown":
             firmware = (f"firmware unknown (no sketch documented): profiled over {', '.join(ft.get('profiled_over', []))}, "
                         f"replayed by default with {ft.get('default_sketch')}'s timing")

@@ -851,6 +851,8 @@ def _load(lay: Layout):
         os.replace(tmp, path)
     name = f"omnibench_kernel_{key}"
     spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"cannot load the generated kernel {path}")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
@@ -875,10 +877,10 @@ def _compile(module) -> None:
     tests/model/test_kernel_numerics.py check the compiled kernel against a plain numpy model."""
     from numba.core import config
 
-    previous = config.SLP_VECTORIZE
-    config.SLP_VECTORIZE = 1
+    previous = config.SLP_VECTORIZE  # type: ignore[attr-defined]  # set at runtime by numba's config reload
+    config.SLP_VECTORIZE = 1  # type: ignore[attr-defined]  # (same)
     try:
         module.run.compile(_run_signature())
         module.run_serial.compile(_run_signature())
     finally:
-        config.SLP_VECTORIZE = previous
+        config.SLP_VECTORIZE = previous  # type: ignore[attr-defined]  # (same)

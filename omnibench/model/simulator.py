@@ -99,7 +99,8 @@ def decay_rates_of(pairs: Sequence[tuple[Robot, Scenario]], lay: Layout | None =
     lay = lay or layout()
     preps = [_prepare(r, s, lay) for r, s in pairs]
     stack = lambda name: np.ascontiguousarray(np.stack([getattr(p, name) for p in preps]))  # noqa: E731
-    return decay_rates(*(stack(n) for n in ("x0", "rv", "P", "EN", "Rm", "Sm", "Minv", "M")), lay)
+    X0, RV, P, EN, Rm, Sm, Minv, M = (stack(n) for n in ("x0", "rv", "P", "EN", "Rm", "Sm", "Minv", "M"))
+    return decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay)
 
 
 def _prepare(robot: Robot, scenario: Scenario, lay: Layout) -> Prepared:
@@ -412,6 +413,7 @@ class Simulator:
         self._last = self._advance_steps(np.zeros(4), 0)
 
     def _advance_steps(self, duties: np.ndarray, n: int) -> np.ndarray:
+        assert self._X is not None, "set_scenario sets the state before any step"
         p = self._prep
         REC = np.zeros((1, 2 if n > 0 else 1, len(self._columns)))
         U = np.asarray(duties, dtype=float).reshape(1, 1, 4)

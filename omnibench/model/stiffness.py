@@ -106,7 +106,7 @@ def ground_split(lam: np.ndarray, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -
     todo: dict[bytes, int] = {}
     for key, b in zip(keys, ground):
         if key not in _SPLITS and key not in todo:
-            todo[key] = b
+            todo[key] = int(b)
     if todo:
         rows = np.array(list(todo.values()))
         parts = _ground_split(lam[rows], X0[rows], RV[rows], P[rows], EN[rows], Rm[rows], Sm[rows], Minv[rows],
@@ -128,13 +128,13 @@ def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarra
     ground = np.arange(RV.shape[0])
     iphi, isig = kernel.RV["sign_width_phi"], kernel.RV["sign_width_sigma"]
     take = lambda a: np.ascontiguousarray(a[ground])  # noqa: E731
-    args = [take(a) for a in (X0, RV, P, EN, Rm, Sm, Minv, M)]
+    X0g, RVg, Pg, ENg, Rmg, Smg, Minvg, Mg = (take(a) for a in (X0, RV, P, EN, Rm, Sm, Minv, M))
 
     def rate(f_phi: float, f_sig: float) -> np.ndarray:
-        rv = args[1].copy()
+        rv = RVg.copy()
         rv[:, iphi] *= f_phi
         rv[:, isig] *= f_sig
-        return decay_rates(args[0], rv, *args[2:], lay)
+        return decay_rates(X0g, rv, Pg, ENg, Rmg, Smg, Minvg, Mg, lay)
 
     base = rate(WIDE, WIDE)
     lam_phi = np.maximum(rate(1.0, WIDE) - base, 0.0)
@@ -150,7 +150,7 @@ def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarra
     # max(eps, w_s / 2)) keeps more slope away from zero. Check the bound where the robot
     # moves (wheels at SPEEDS x eps_phi, forward, sideways and turning) against the rate
     # measured there, and raise lam_base by any shortfall.
-    rv = args[1]
+    rv = RVg
     eps_phi, eps_sig = rv[:, iphi], rv[:, isig]
     r = rv[:, kernel.RV["r"]]
     rows = np.arange(ground.size)
@@ -160,9 +160,10 @@ def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarra
             center[:, axis] = x * eps_phi * r * (1.0 if axis < 2 else 1.0 / (rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]))
             d = len(GROUND_DOFS)
             nudge = NUDGE * np.minimum(eps_phi * r / (1.0 + rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]), eps_sig / 1.5)
-            got = _decay_rates(rows, GROUND_DOFS, nudge, *args, lay, center=center)
-            w = np.einsum("bjk,bk->bj", args[4], center)
-            s = np.einsum("bjk,bk->bj", args[5], center)
+            got = _decay_rates(rows, GROUND_DOFS, nudge, X0g, RVg, Pg, ENg, Rmg, Smg, Minvg, Mg, lay,
+                               center=center)
+            w = np.einsum("bjk,bk->bj", Rmg, center)
+            s = np.einsum("bjk,bk->bj", Smg, center)
             f_phi = np.max(1.0 - np.tanh(np.abs(w) / eps_phi[:, None]) ** 2, axis=1)
             f_sig = np.max((1.0 + (s / eps_sig[:, None]) ** 2) ** -1.5, axis=1)
             bound = base + lam_phi * f_phi + lam_sig * f_sig

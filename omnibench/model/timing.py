@@ -89,7 +89,8 @@ def lag_schedules(t_cmd: np.ndarray, U: np.ndarray, lags: np.ndarray, dt: float,
     B = U.shape[0]
     n = int(math.ceil(t_end / dt - 1e-9)) + 1
     grid = np.arange(n + 1) * dt
-    ubar = np.diff(_integral(np.asarray(t_cmd, dtype=float), U, np.zeros((B, 4)), grid), axis=2) / dt  # (B, 4, n)
+    ubar = np.diff(schedule_integral(np.asarray(t_cmd, dtype=float), U, np.zeros((B, 4)), grid),
+                   axis=2) / dt  # (B, 4, n)
     out = ubar.copy()
     lags = np.asarray(lags, dtype=float).reshape(B, 4)
     a, c = lag_coefficients(lags, dt)
@@ -121,12 +122,12 @@ def delay_schedules(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray,
         return times, np.ascontiguousarray(np.where(idx >= 0, gathered, 0.0).transpose(0, 2, 1))
     k = np.floor(shifted.ravel() / dt + 1e-9)
     times = np.unique(np.concatenate([k * dt, (k + 1) * dt]))
-    lo = _integral(t_cmd, U, delays, times)
-    hi = _integral(t_cmd, U, delays, times + dt)
+    lo = schedule_integral(t_cmd, U, delays, times)
+    hi = schedule_integral(t_cmd, U, delays, times + dt)
     return times, np.ascontiguousarray(((hi - lo) / dt).transpose(0, 2, 1))
 
 
-def _integral(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray, at: np.ndarray) -> np.ndarray:
+def schedule_integral(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray, at: np.ndarray) -> np.ndarray:
     """int_0^t u_j(s - d_j) ds of each delayed zero-order-hold schedule at times `at`: (B, 4, len(at))."""
     Uw = U.transpose(0, 2, 1)  # (B, 4, K)
     widths = np.diff(t_cmd)
@@ -145,5 +146,5 @@ def step_average(history: Sequence[tuple[float, np.ndarray]], delays: np.ndarray
     t = np.array([h[0] for h in history], dtype=float)
     U = np.array([h[1] for h in history], dtype=float)[None]
     d = np.asarray(delays, dtype=float)[None]
-    ends = _integral(t, U, d, np.array([t0, t1]))[0]
+    ends = schedule_integral(t, U, d, np.array([t0, t1]))[0]
     return (ends[:, 1] - ends[:, 0]) / (t1 - t0)

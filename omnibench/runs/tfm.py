@@ -124,7 +124,7 @@ def parse_signs(text: str) -> tuple[int, int, int, int]:
         vals = ()
     if len(vals) != 4 or any(v not in (1, -1) for v in vals):
         raise UserError(f"--signs {text!r}: give four signs, one per wheel FL,FR,RL,RR, e.g. +1,-1,+1,-1")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 def _load(path: Path) -> dict[str, Any]:
@@ -309,6 +309,7 @@ def _import_ground(file: Path, data: dict[str, Any], out: Path, signs: tuple[int
                         f"not as --direction {direction} ({DIRECTIONS[direction]}) says: check --signs or --direction")
     given = direction
     direction = direction or seen
+    assert direction is not None, "without --direction a failed direction_of raised above"
     pattern = DIRECTIONS[direction]
     gains = {k: np.asarray(data[k], dtype=float).tolist() for k in ("Ks", "fits", "Ts") if k in data}
     extra = {**_base_extra(file, signs, "results_ground", timing), "mode": "ground", "fitted_gains": gains,

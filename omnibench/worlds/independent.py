@@ -329,7 +329,7 @@ class IndependentPhysics:
         self.v[m] = v_new[m]
         self.phi[m] += h * motor_speed[m]
 
-    slip_rate = 0.0
+    slip_rate: float | np.ndarray = 0.0  # (n, 4) rad/s once a screw slips
 
     def _set_screw(self, tau: np.ndarray, dtau: np.ndarray):
         """Wheel j's screw slips once its torque exceeds `torque`: the motor side spins ahead at

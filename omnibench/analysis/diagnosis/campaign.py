@@ -174,10 +174,10 @@ def _square_wave(robot: Any, world: Mapping[str, Mapping[str, float]], spec: Squ
                          record_every=1)
     # irregular sample times, like the Arduino's loop; the loop that sends a new command logs
     # it, so every switch time (and the start) is a sample time
-    ts = [0.0]
-    while ts[-1] + spec.sample_dt + spec.jitter < spec.duration:
-        ts.append(ts[-1] + spec.sample_dt + rng.uniform(-spec.jitter, spec.jitter))
-    ts = np.asarray(ts)
+    times = [0.0]
+    while times[-1] + spec.sample_dt + spec.jitter < spec.duration:
+        times.append(times[-1] + spec.sample_dt + rng.uniform(-spec.jitter, spec.jitter))
+    ts = np.asarray(times)
     switches = np.asarray(t_cmd, dtype=float)
     near = np.min(np.abs(ts[:, None] - switches[None, :]), axis=1) < 0.5 * spec.sample_dt
     ts = np.unique(np.round(np.concatenate([ts[~near], switches]), 3))  # millisecond clock

@@ -366,8 +366,9 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         passing: list[Candidate] = []
         best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
         # how many the screen sends to a full fit (the fallback may add more): for the progress line
-        n_lead = min(top_k, sum(1 for e in pool if scr.approx_lr[e.name] / thr[e.name]
-                                >= max(RELATIVE_SCREEN * best_ratio, SCREEN_FRACTION)))
+        strong = [e for e in pool if scr.approx_lr[e.name] / thr[e.name]
+                  >= max(RELATIVE_SCREEN * best_ratio, SCREEN_FRACTION)]
+        n_lead = min(top_k, len(strong))
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
@@ -461,6 +462,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             elif not c.remaining:
                 c.reason = f"significant, but {best.name} explains the data better (AIC difference {diff:.1f})"
         for c in added:
+            assert c.struct is not None, "an added candidate has been refitted"
             c.verdict = "selected"
             selected.append(c)
             exposed_f = _exposing_finding(cur_struct, cur_ntests, c.struct)
@@ -470,6 +472,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         names_added = {c.name for c in added}
         rejected += [c for c in tried if c.name not in names_added]
         current = best.fit
+        assert best.struct is not None, "an added candidate has been refitted"
         cur_struct, cur_ntests = best.struct
         pool = [e for e in pool if e.name not in names_added]
     # "added" reports the final model's values, not those of the round that added the effect

@@ -403,6 +403,7 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
         f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale)
         if best is None or f.deviance < best.deviance:
             best = f
+    assert best is not None, "_restarts yields the start point at least"
     return best
 
 

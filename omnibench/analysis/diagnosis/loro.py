@@ -219,7 +219,7 @@ def leave_one_firmware_out(diag: Any, obs: Any, *, progress: Callable[[str], Non
                            max_nfev: int = 30) -> HeldOutFirmware:
     """Every stage of `diag` refitted on the logs of all sketches but one, predicting that one's
     logs (runs of unknown firmware are in no fold: their timing is not documented)."""
-    from omnibench.analysis.heldout_runs import _run_error, _run_kind, fit_physics
+    from omnibench.analysis.heldout_runs import fit_physics, run_error, run_kind
 
     say = progress or (lambda s: None)
     models = stage_models(diag)
@@ -238,13 +238,13 @@ def leave_one_firmware_out(diag: Any, obs: Any, *, progress: Callable[[str], Non
     for k, (sketch, held) in enumerate(groups.items()):
         train_runs = [r for s, rs in groups.items() if s != sketch for r in rs]
         train = obs.select(runs=train_runs)
-        errs = {r: RunError(r, _run_kind(obs, r), "steady speed" if _run_kind(obs, r) == "sweep" else "wheel speed")
+        errs = {r: RunError(r, run_kind(obs, r), "steady speed" if run_kind(obs, r) == "sweep" else "wheel speed")
                 for r in held}
         for label, model in models.items():
             say(f"{sketch} (firmware {k + 1} of {len(groups)}): fitting {label} to {len(train_runs)} run(s) of other sketches")
             fitted = fit_physics(model, train, max_nfev)
             for r in held:
-                errs[r].nrmse[label], series = _run_error(fitted, obs, r)
+                errs[r].nrmse[label], series = run_error(fitted, obs, r)
                 if series is not None:
                     errs[r].series[label] = series
         for r in held:
