@@ -185,6 +185,7 @@ int main(int argc, char **argv) {
     }
     fflush(stdout);
     /* not uart_pty_stop(): in simavr 1.6 it joins a thread that never returns (it waits in
-       select() on the pty); ending the process ends the thread */
-    return state == cpu_Crashed;
+       select() on the pty). _exit, not return: exit handlers tearing the process down while that
+       thread is still in select() aborted it once ("bit out of range 0 - FD_SETSIZE"), exit -6 */
+    _exit(state == cpu_Crashed);
 }

@@ -128,18 +128,12 @@ def test_the_host_connects_after_the_reset_a_port_open_causes(boot_build, tmp_pa
         rig.communicate(timeout=30)
 
 
-def test_the_host_connects_when_it_opens_the_port_as_the_reset_happens(boot_build, tmp_path) -> None:
-    """As a user meets it: the firmware runs, opening the port resets the Mega (DTR) and the
-    host handshakes at once, into the stock bootloader's wait. Any byte the bootloader receives
-    starts a programming session it leaves only after 5 s of silence (stk500boot.c,
-    recchar_timeout: 8e6 polls of 10 cycles at 16 MHz), so a host that keeps re-sending
-    HELLO_REQ never sees the firmware. Board.open with its default timeout must get HELLO.
-    The rig runs at a real Mega's pace (BOOTRIG_REALTIME), as the host times its silence on
-    the wall clock."""
+def _open_as_the_reset_happens(boot_build, flash) -> tuple[list, float, float]:
+    """One try: the rig in real time, a DTR reset and Board.open right behind it; returns the
+    rig's events (BOOT lines left out), the seconds Board.open took and the rig's worst lag
+    behind the wall clock (s)."""
     from omnibench.link.board import Board
 
-    flash = tmp_path / "flash.bin"
-    app_image(boot_build, flash)
     rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                            env={**os.environ, "BOOTRIG_REALTIME": "1"})
@@ -169,6 +163,25 @@ def test_the_host_connects_when_it_opens_the_port_as_the_reset_happens(boot_buil
     kinds = [e[0] for e in ev]
     assert kinds == ["RESET", "APP", "RESET", "APP", "END"] and ev[2][2] == "dtr", ev  # one hand-over
     lag = float(ev[-1][2].split()[-1])
+    return ev, took, lag
+
+
+def test_the_host_connects_when_it_opens_the_port_as_the_reset_happens(boot_build, tmp_path) -> None:
+    """As a user meets it: the firmware runs, opening the port resets the Mega (DTR) and the
+    host handshakes at once, into the stock bootloader's wait. Any byte the bootloader receives
+    starts a programming session it leaves only after 5 s of silence (stk500boot.c,
+    recchar_timeout: 8e6 polls of 10 cycles at 16 MHz), so a host that keeps re-sending
+    HELLO_REQ never sees the firmware. Board.open with its default timeout must get HELLO.
+    The rig runs at a real Mega's pace (BOOTRIG_REALTIME), as the host times its silence on
+    the wall clock."""
+    flash = tmp_path / "flash.bin"
+    app_image(boot_build, flash)
+    # the rig must keep a Mega's pace for the test to mean anything; a CI machine busy with other
+    # tests can hold it back, so a try whose rig lagged is repeated (three at most)
+    for _ in range(3):
+        ev, took, lag = _open_as_the_reset_happens(boot_build, flash)
+        if lag < 0.5:
+            break
     assert lag < 0.5, f"simavr fell {lag:.2f} s behind the wall clock: the rig was not a Mega in real time"
     # the request reached the bootloader's wait: it started the firmware 5 s after it
     # (a real Mega is still starting up when the host's first bytes arrive, and starts the firmware after 0.83 s)

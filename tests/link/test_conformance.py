@@ -198,20 +198,20 @@ class TestBoardConformance:
             with Board.open(target.url) as b:
                 b.clear_faults()
                 b.set_duties([0.3] * 4)
-                assert not target.status()["motors_stopped"]
+                assert not _once_stopped(target, until_stopped=False)["motors_stopped"]
                 raise RuntimeError("procedure failed")
         st = _once_stopped(target)
         assert st["motors_stopped"] and st["last_command"] == "STOP" and st["faults"] == []
 
 
-def _once_stopped(target, wall_s: float = 5.0) -> dict:
-    """The target's status once its motors have stopped (or after `wall_s` s of wall time): the
-    firmware acknowledges STOP before its stop packets have crossed the 9600-baud driver line
-    (up to 21.7 ms of board time, benchmarks/firmware.py), as on the robot; a busy host may read
-    the status in between."""
+def _once_stopped(target, wall_s: float = 5.0, until_stopped: bool = True) -> dict:
+    """The target's status once its motors have stopped (`until_stopped=False`: started), or
+    after `wall_s` s of wall time: the firmware acknowledges STOP and SET_DUTIES before their
+    packets have crossed the 9600-baud driver line (up to 21.7 ms of board time,
+    benchmarks/firmware.py), as on the robot; a busy host may read the status in between."""
     deadline = time.monotonic() + wall_s
     st = target.status()
-    while not st["motors_stopped"] and time.monotonic() < deadline:
+    while st["motors_stopped"] != until_stopped and time.monotonic() < deadline:
         time.sleep(0.05)
         st = target.status()
     return st

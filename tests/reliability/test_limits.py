@@ -143,4 +143,4 @@ def test_two_campaign_processes_into_one_folder_the_second_is_refused(tmp_path) 
         assert f"process {first.pid}" in err and "a campaign is writing into this folder" in err
     finally:
         first.send_signal(signal.SIGINT)
-        first.wait(60)
+        first.wait(300)  # a Ctrl-C during the kernel compile is handled when the compile ends (minutes on a loaded CI machine)
