@@ -81,8 +81,8 @@ def test_tee_passes_lines_on_and_keeps_them() -> None:
 @pytest.mark.slow
 def test_stage_progress_reaches_the_terminal_and_ctrl_c_there_stops_the_campaign(tmp_path) -> None:
     """A person at a terminal (a pseudo-terminal here) sees the fit's spinner and diagnose's own
-    lines (the round, the candidate being fitted) while the stages run, and Ctrl-C typed there
-    stops the campaign with exit 130, marked as stopped in diagnose."""
+    lines while the stages run, and Ctrl-C typed there stops the campaign with exit 130, marked
+    as stopped in diagnose."""
     import os
     import signal
     import sys
@@ -100,17 +100,15 @@ def test_stage_progress_reaches_the_terminal_and_ctrl_c_there_stops_the_campaign
         child.expect("== fit: omnibench fit")
         child.expect(r"fit running, \d+ s")  # the spinner with the elapsed time
         child.expect("== diagnose: omnibench diagnose")
-        child.expect("diagnose: fitting the declared model")  # the stage's own lines, as they come
-        # round 1 with the whole library (screening every candidate, then fitting the deadband) is
-        # diagnose's longest phase, so the Ctrl-C lands in diagnose however far behind this reader
-        # runs on a busy machine (with one candidate it once finished before the Ctrl-C came)
-        child.expect(r"diagnose: round 1: ")
+        # the stage's own lines, as they come; the Ctrl-C goes in at its first one: with this short
+        # campaign the whole diagnosis now takes seconds, and a reader that matched "round 1" on a
+        # busy CI machine twice sent it after the campaign had ended
+        child.expect("diagnose: fitting the declared model")
         child.sendintr()  # Ctrl-C
         interrupted = "campaign interrupted \\(Ctrl-C\\) in diagnose"
         if child.expect([interrupted, pexpect.TIMEOUT], timeout=20) == 1:
-            # twice in CI under pytest-xdist at load the typed Ctrl-C did not reach the campaign (it
-            # ran to the end; not understood, never seen alone): the SIGINT the terminal sends, sent
-            # to the process itself, so the campaign's handling of it is still what is checked
+            # a typed Ctrl-C not acted on within 20 s (not seen so far; a guard while the CI failures
+            # above are watched): the SIGINT the terminal sends, sent to the process itself
             os.kill(child.pid, signal.SIGINT)
             child.expect(interrupted)
         child.expect(pexpect.EOF)
