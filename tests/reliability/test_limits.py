@@ -128,11 +128,14 @@ def test_two_campaign_processes_into_one_folder_the_second_is_refused(tmp_path) 
     import sys
     import time
 
+    from tests.simserver import sigint_as_in_a_terminal
+
     out = tmp_path / "campaign"
     procs = ROOT / "tests" / "bench" / "procedures" / "campaign"
     first = subprocess.Popen([sys.executable, "-m", "omnibench", "-q", "campaign", "--port",
                               "sim://?seed=2&clock=realtime", "--out", str(out), "--procedures", str(procs)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=sigint_as_in_a_terminal)  # it is stopped with SIGINT below
     try:
         deadline = time.monotonic() + 120
         while not (out / locks.LOCK_FILE).exists() and first.poll() is None and time.monotonic() < deadline:
