@@ -34,7 +34,44 @@ UPSIDE_DOWN_DOFS = tuple(kernel.X_PHID + j for j in range(4))  # free wheel spee
 def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
     """Largest decay rate (1/s) of the speeds' dynamics at rest with zero duty, for B prepared
     trajectories (the kernel's stacked input arrays): max real part of the eigenvalues of
-    -d(speed_dot)/d(speed)."""
+    -d(speed_dot)/d(speed).
+
+    A fit asks for the rates of the same rows again and again (every trajectory of every
+    parameter set at each simulate_batch call, and Predictor.substeps; most rows of a call
+    differ only in their commands, which the rates do not see): each distinct row (all its
+    inputs, byte for byte) is computed once per process and remembered (issue 34: 0.5-1 s of
+    CPU of an `omnibench fit`)."""
+    B = X0.shape[0]
+    arrays = (X0, RV, P, EN, Rm, Sm, Minv, M)
+    cache = _rates_cache(lay)
+    keys = [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in arrays) for b in range(B)]
+    todo: dict[bytes, int] = {}
+    for b, key in enumerate(keys):
+        if key not in cache and key not in todo:
+            todo[key] = b
+    if todo:
+        rows = np.fromiter(todo.values(), dtype=np.int64, count=len(todo))
+        lam = _decay_rates_of_rows(*(np.ascontiguousarray(a[rows]) for a in arrays), lay)
+        if len(cache) + len(todo) > 100_000:
+            cache.clear()
+        for key, x in zip(todo, lam):
+            cache[key] = float(x)
+    return np.array([cache[key] for key in keys], dtype=float)
+
+
+_RATES: dict[int, tuple[Layout, dict[bytes, float]]] = {}
+
+
+def _rates_cache(lay: Layout) -> dict[bytes, float]:
+    """The remembered rates of one layout (its kernel)."""
+    got = _RATES.get(id(lay))
+    if got is None or got[0] is not lay:
+        got = _RATES[id(lay)] = (lay, {})
+    return got[1]
+
+
+def _decay_rates_of_rows(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+    """`decay_rates` computed (no cache)."""
     B = X0.shape[0]
     lam = np.zeros(B)
     rv = {name: RV[:, k] for k, name in enumerate(kernel.RV_NAMES)}
