@@ -106,12 +106,16 @@ class Predictor:
         self.world_effects = effects or {}
         self.entries: list[dict[str, Any]] = []
         self.groups: dict[tuple, _Group] = {}
+        self._scenarios: list[Scenario] = []
         for p in self.procedures:
             getattr(self, f"_build_{p}")(obs.table(p))
         self.table = pd.DataFrame(self.entries, columns=ENTRY_COLUMNS)
         self.measured = self.table["measured"].to_numpy(dtype=float)
         self.sigma = self.table["sigma"].to_numpy(dtype=float)
-        self._cache: OrderedDict[tuple[str, int | None], np.ndarray] = OrderedDict()
+        #: (group key, repr of the parameter set, the group's sub-steps) -> its block of predictions
+        self._cache: OrderedDict[tuple[tuple, str, int | None], np.ndarray] = OrderedDict()
+        self._cached_numbers = 0
+        self._indices: dict[tuple, np.ndarray] = {}
         self._substeps: dict[tuple[str, ...], int] = {}
         self._mode_substeps: dict[tuple[str, ...], int] = {}
         self._up_substeps: int | None = None
@@ -143,9 +147,15 @@ class Predictor:
 
     def scenario(self, run: str, **kw: Any) -> Scenario:
         """The run's world: `kw` (mode, payload, wheel masses), the world effects, and the
-        firmware's send order when the run records one."""
-        return Scenario(effects=self.world_effects, command_order=self.obs.runs.get(run, {}).get("command_order"),
-                        **kw)
+        firmware's send order when the run records one. Equal worlds are one object, so that
+        simulate_batch prepares each (parameter set, world) pair once, not once per step."""
+        sc = Scenario(effects=self.world_effects, command_order=self.obs.runs.get(run, {}).get("command_order"),
+                      **kw)
+        for seen in self._scenarios:
+            if seen == sc:
+                return seen
+        self._scenarios.append(sc)
+        return sc
 
     def _build_sweep(self, df: pd.DataFrame) -> None:
         for (run, step), rows in df.groupby(["run", "step"], sort=False):
@@ -296,82 +306,74 @@ class Predictor:
                 same_as_first: Mapping[tuple, set[int]] | None = None) -> np.ndarray:
         """Predictions (len(robots), len(self)) of every entry, one simulate_batch call per group.
 
-        A parameter set predicted before (same robot, same sub-steps) is not simulated again: the
-        result is the cached one, bit for bit what a new simulation would give.
+        A parameter set predicted before in a group (same robot, same sub-steps of that group)
+        is not simulated again there: the block is the cached one, bit for bit what a new
+        simulation would give. The cache is per group, so a Jacobian's parameter set whose
+        other groups were copied (same_as_first) is still found for the groups it simulated.
 
         same_as_first: {group key: robot indices} whose predictions in that group are known to
         equal robot 0's (a parameter the group does not depend on); they are not simulated."""
-        keys = [(repr(r), substeps) for r in robots]
-        self._up_substeps = self._mode_substeps.get((keys[0][0],)) if robots else None
+        keys = [repr(r) for r in robots]
+        self._up_substeps = self._mode_substeps.get((keys[0],)) if robots else None
         out = np.full((len(robots), len(self.entries)), np.nan)
-        skipped = {p for s in (same_as_first or {}).values() for p in s if p != 0}
-        todo: list[int] = []  # first index of every parameter set not in the cache
-        first: dict[tuple[str, int | None], int] = {}
-        for p, key in enumerate(keys):
-            if p in skipped:
-                todo.append(p)
-                continue
-            hit = self._cache.get(key)
-            if hit is not None:
-                out[p] = hit
-                self._cache.move_to_end(key)
-            elif key not in first:
-                first[key] = p
-                todo.append(p)
-        if todo:
-            # same_as_first's indices refer to `robots`: renumber them for the ones simulated;
-            # their skipped blocks copy robot 0's numbers (simulated now, or from the cache)
-            pos = {p: q for q, p in enumerate(todo)}
-            sub_skip = {k: {pos[p] for p in s if p in pos and p != 0} for k, s in (same_as_first or {}).items()}
-            row0 = None if (not sub_skip or 0 in pos) else out[0]
-            sim = self._simulate([robots[p] for p in todo], substeps, sub_skip, row0)
-            for q, p in enumerate(todo):
-                out[p] = sim[q]
-                if p not in skipped:  # a row with copied blocks is not a simulation: not cached
-                    self._store(keys[p], sim[q])
-        for p, key in enumerate(keys):  # a parameter set asked for twice in this call
-            if p not in skipped and p not in todo and key in first and first[key] != p:
-                out[p] = out[first[key]]
+        for gkey, g in self.groups.items():
+            idx = self._group_index(gkey, g)
+            sub = self._group_substeps(g, substeps)
+            skip = {p for p in (same_as_first or {}).get(gkey, set()) if p != 0}
+            todo: list[int] = []  # first index of every parameter set not in the cache
+            first: dict[str, int] = {}
+            for p, key in enumerate(keys):
+                if p in skip:
+                    continue
+                hit = self._cache.get((gkey, key, sub))
+                if hit is not None:
+                    out[p, idx] = hit
+                    self._cache.move_to_end((gkey, key, sub))
+                elif key not in first:
+                    first[key] = p
+                    todo.append(p)
+            if todo:
+                sim = self._simulate_group(g, [robots[p] for p in todo], sub, idx)
+                for q, p in enumerate(todo):
+                    out[p, idx] = sim[q]
+                    self._store((gkey, keys[p], sub), sim[q])
+            for p, key in enumerate(keys):
+                if p in skip:
+                    out[p, idx] = out[0, idx]
+                elif key in first and first[key] != p:  # a parameter set asked for twice in this call
+                    out[p, idx] = out[first[key], idx]
         return out
 
-    def _store(self, key: tuple[str, int | None], f: np.ndarray) -> None:
-        self._cache[key] = f.copy()
-        limit = max(16, CACHE_NUMBERS // max(len(self.entries), 1))
-        while len(self._cache) > limit:
-            self._cache.popitem(last=False)
+    def _group_index(self, key: tuple, g: _Group) -> np.ndarray:
+        """Entry indices (sorted) one group predicts."""
+        got = self._indices.get(key)
+        if got is None:
+            got = self._indices[key] = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
+        return got
 
-    def _simulate(self, robots: Sequence[Any], substeps: int | None, same_as_first: Mapping[tuple, set[int]],
-                  row0: np.ndarray | None = None) -> np.ndarray:
-        """`predict` without the cache. Blocks in same_as_first copy robot 0's numbers, or `row0`'s
-        when it is given (robot 0 was predicted before and is not among `robots`)."""
+    def _store(self, key: tuple[tuple, str, int | None], f: np.ndarray) -> None:
+        self._cache[key] = f.copy()
+        self._cached_numbers += f.size
+        while self._cached_numbers > CACHE_NUMBERS and len(self._cache) > 16:
+            self._cached_numbers -= self._cache.popitem(last=False)[1].size
+
+    def _simulate_group(self, g: _Group, robots: Sequence[Any], substeps: int | None,
+                        idx: np.ndarray) -> np.ndarray:
+        """Predictions (len(robots), len(idx)) of one group's entries, simulated (no cache)."""
+        t_cmd, U, shift, t_end = g.built()
+        n = U.shape[0]
         P = len(robots)
-        out = np.full((P, len(self.entries)), np.nan)
-        for key, g in self.groups.items():
-            t_cmd, U, shift, t_end = g.built()
-            n = U.shape[0]
-            skip = same_as_first.get(key, set())
-            sims = [p for p in range(P) if p not in skip or (p == 0 and row0 is None)]
-            idx = np.array(sorted(k for ex in g.extract for _, _, k in ex[1]), dtype=int)
-            if row0 is not None:
-                for p in range(P):
-                    if p not in sims:
-                        out[p, idx] = row0[idx]
-            if not sims:
-                continue
-            self.simulated += len(sims)
-            rob = [with_supply(robots[p], g.v_batt[k]) for p in sims for k in range(n)]
-            res = simulate_batch(rob, g.scen * len(sims), t_cmd, np.concatenate([U] * len(sims)), t_end,
-                                 dt=PHYSICS_DT, record_every=g.record_every,
-                                 substeps=self._group_substeps(g, substeps), adaptive=True)
-            slopes = self._drive_slopes(g, res, shift, len(sims))
-            for q, p in enumerate(sims):
-                for k, ex in enumerate(g.extract):
-                    self._extract(out[p], res, q * n + k, ex, shift,
-                                  None if slopes is None else slopes[q * n + k])
-            if row0 is None and 0 in sims:
-                for p in range(P):
-                    if p not in sims:
-                        out[p, idx] = out[0, idx]
+        self.simulated += P
+        rob = [with_supply(r, g.v_batt[k]) for r in robots for k in range(n)]
+        res = simulate_batch(rob, g.scen * P, t_cmd, np.concatenate([U] * P), t_end,
+                             dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps, adaptive=True)
+        slopes = self._drive_slopes(g, res, shift, P)
+        row = np.full(len(self.entries), np.nan)
+        out = np.empty((P, len(idx)))
+        for q in range(P):
+            for k, ex in enumerate(g.extract):
+                self._extract(row, res, q * n + k, ex, shift, None if slopes is None else slopes[q * n + k])
+            out[q] = row[idx]
         return out
 
     @staticmethod

@@ -217,8 +217,12 @@ def _delayed(robots: Sequence[Robot], scenarios: Sequence[Scenario], t_cmd, u_cm
     physics grid up to t_end); unchanged, the same arrays, when no trajectory has either."""
     from omnibench.model.timing import delay_schedules, lag_schedules
 
-    delays = np.stack([command_delays(r, s) for r, s in zip(robots, scenarios)])
-    lags = np.stack([command_lags(r, s) for r, s in zip(robots, scenarios)])
+    pairs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # the same objects: computed once
+    for r, s in zip(robots, scenarios):
+        if (id(r), id(s)) not in pairs:
+            pairs[(id(r), id(s))] = (command_delays(r, s), command_lags(r, s))
+    delays = np.stack([pairs[(id(r), id(s))][0] for r, s in zip(robots, scenarios)])
+    lags = np.stack([pairs[(id(r), id(s))][1] for r, s in zip(robots, scenarios)])
     if not np.any(delays) and not np.any(lags):
         return t_cmd, u_cmd
     t = np.asarray(t_cmd, dtype=float)
@@ -255,6 +259,20 @@ def _frame(t: np.ndarray, rec: np.ndarray, columns: list[str]) -> pd.DataFrame:
     )
 
 
+def _prepared(robots: Sequence[Robot], scenarios: Sequence[Scenario], lay: Layout) -> list[Prepared]:
+    """`_prepare` of every pair; a pair of the same robot and scenario objects (a parameter set
+    over many runs of one world: the fit's batches) is prepared once."""
+    done: dict[tuple[int, int], Prepared] = {}
+    out = []
+    for r, s in zip(robots, scenarios):
+        key = (id(r), id(s))
+        p = done.get(key)
+        if p is None:
+            p = done[key] = _prepare(r, s, lay)
+        out.append(p)
+    return out
+
+
 def simulate_batch(
     robots: Robot | Sequence[Robot],
     scenarios: Scenario | Sequence[Scenario],
@@ -286,7 +304,7 @@ def simulate_batch(
         raise ValueError("robots and scenarios must have the same length (or length 1)")
     lay = layout()
     mod = kernel.load_kernel(lay)
-    preps = [_prepare(r, s, lay) for r, s in zip(robots, scenarios)]
+    preps = _prepared(robots, scenarios, lay)
     n_steps = int(round(t_end / dt))
     t_cmd, u_cmd = _delayed(robots, scenarios, t_cmd, u_cmd, dt, n_steps * dt)
     idx, U = _commands(t_cmd, u_cmd, 0.0, dt, n_steps)
