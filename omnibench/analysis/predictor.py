@@ -161,14 +161,15 @@ class Predictor:
         for (run, step), rows in df.groupby(["run", "step"], sort=False):
             U = np.zeros(4)
             masses: list[float | None] = [None] * 4
-            for _, r in rows.iterrows():
+            recs = rows.to_dict("records")  # plain dicts: iterrows builds a Series per row (~10x slower)
+            for r in recs:
                 U[int(r["wheel"]) - 1] = r["u"]
                 masses[int(r["wheel"]) - 1] = float(r["wheel_mass"])
             fill = next((m for m in masses if m is not None), 1.0)
             wheel_mass = tuple(m if m is not None else fill for m in masses)
             g = self._group(("sweep",), int(round(SWEEP_HOLD / PHYSICS_DT)))
             idx = []
-            for _, r in rows.iterrows():
+            for r in recs:
                 j = int(r["wheel"])
                 meta = dict(procedure="sweep", run=run, step=int(step), wheel=j, speed=r["omega"], F_N=r["F_N"],
                             direction=r["direction"], time=r.get("time", np.nan), current=r["current"], u=r["u"],
