@@ -190,20 +190,23 @@ def _ground_split(lam, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarra
     rv = RVg
     eps_phi, eps_sig = rv[:, iphi], rv[:, isig]
     r = rv[:, kernel.RV["r"]]
-    rows = np.arange(ground.size)
-    for x in SPEEDS:
-        for axis in range(3):
-            center = np.zeros((ground.size, 3))
-            center[:, axis] = x * eps_phi * r * (1.0 if axis < 2 else 1.0 / (rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]))
-            d = len(GROUND_DOFS)
-            nudge = NUDGE * np.minimum(eps_phi * r / (1.0 + rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]), eps_sig / 1.5)
-            got = _decay_rates(rows, GROUND_DOFS, nudge, X0g, RVg, Pg, ENg, Rmg, Smg, Minvg, Mg, lay,
-                               center=center)
-            w = np.einsum("bjk,bk->bj", Rmg, center)
-            s = np.einsum("bjk,bk->bj", Smg, center)
-            f_phi = np.max(1.0 - np.tanh(np.abs(w) / eps_phi[:, None]) ** 2, axis=1)
-            f_sig = np.max((1.0 + (s / eps_sig[:, None]) ** 2) ** -1.5, axis=1)
-            bound = base + lam_phi * f_phi + lam_sig * f_sig
-            base = base + np.maximum(got - bound, 0.0) * 1.2
-        del d
+    n = ground.size
+    probes = [(x, axis) for x in SPEEDS for axis in range(3)]
+    centers = np.zeros((len(probes), n, 3))
+    for c, (x, axis) in enumerate(probes):
+        centers[c, :, axis] = x * eps_phi * r * (1.0 if axis < 2 else 1.0 / (rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]))
+    nudge = NUDGE * np.minimum(eps_phi * r / (1.0 + rv[:, kernel.RV["L"]] + rv[:, kernel.RV["l"]]), eps_sig / 1.5)
+    # every probe's rates in one kernel call (the rows repeated per probe): `got` does not
+    # depend on the bound that the loop below raises
+    rows = np.tile(np.arange(n), len(probes))
+    got_all = _decay_rates(rows, GROUND_DOFS, np.tile(nudge, len(probes)), X0g, RVg, Pg, ENg, Rmg, Smg, Minvg, Mg,
+                           lay, center=centers.reshape(-1, 3)).reshape(len(probes), n)
+    for c, center in enumerate(centers):
+        got = got_all[c]
+        w = np.einsum("bjk,bk->bj", Rmg, center)
+        s = np.einsum("bjk,bk->bj", Smg, center)
+        f_phi = np.max(1.0 - np.tanh(np.abs(w) / eps_phi[:, None]) ** 2, axis=1)
+        f_sig = np.max((1.0 + (s / eps_sig[:, None]) ** 2) ** -1.5, axis=1)
+        bound = base + lam_phi * f_phi + lam_sig * f_sig
+        base = base + np.maximum(got - bound, 0.0) * 1.2
     return np.column_stack([base, np.maximum(lam_phi, 1e-300), lam_sig])
