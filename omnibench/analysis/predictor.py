@@ -158,10 +158,15 @@ class Predictor:
         return sc
 
     def _build_sweep(self, df: pd.DataFrame) -> None:
-        for (run, step), rows in df.groupby(["run", "step"], sort=False):
+        # the steps' rows as plain dicts, grouped by (run, step) in order of appearance (as
+        # groupby(sort=False), which drops a missing key too): pandas' per-row access costs ~10 x
+        steps: dict[tuple[Any, Any], list[dict[str, Any]]] = {}
+        for rec in df.to_dict("records"):
+            if pd.notna(rec["run"]) and pd.notna(rec["step"]):
+                steps.setdefault((rec["run"], rec["step"]), []).append(rec)
+        for (run, step), recs in steps.items():
             U = np.zeros(4)
             masses: list[float | None] = [None] * 4
-            recs = rows.to_dict("records")  # plain dicts: iterrows builds a Series per row (~10x slower)
             for r in recs:
                 U[int(r["wheel"]) - 1] = r["u"]
                 masses[int(r["wheel"]) - 1] = float(r["wheel_mass"])
@@ -179,7 +184,7 @@ class Predictor:
                 if math.isfinite(r["current"]):
                     k = self._add(signal="current", unit="A", measured=r["current"], sigma=r["current_se"], **meta)
                     idx.append(("current", j, k))
-            vb = rows["V_batt"].to_numpy(dtype=float) if "V_batt" in rows else np.full(1, np.nan)
+            vb = np.array([r["V_batt"] for r in recs], dtype=float) if "V_batt" in df else np.full(1, np.nan)
             g.add([0.0], U[None, :], SWEEP_HOLD, self.scenario(run, mode="upside_down", wheel_mass=wheel_mass),
                   ("sweep", idx), float(np.nanmedian(vb)) if np.isfinite(vb).any() else self.supply(run))
 
