@@ -554,21 +554,74 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     free: parameter names (default `default_free`). procedures: which observation tables enter
     the fit (default: those of sweep, forward, lateral that have rows; energy and step responses
     are kept for validation). Returns a FitResult; raises UserError when nothing can be fitted.
+
+    Phases, one function each: what enters (`_fit_request`, `_left_out`, `_stated_noise`), the
+    start point (`_start_point`), identifiability at the start (`_identify`), the warm start in
+    the paper's order (`_warm_start`), the joint fit (`_joint_fit`), the pass weighted by each
+    group's own noise (`_reweighted`), the covariance (`_covariance`), the verdicts and notes
+    (`_confounded`, `_final_verdicts`, `_misfit_notes`).
     """
-    procs = [p for p in (procedures or DEFAULT_PROCEDURES) if len(obs.table(p))]
-    if not procs:
-        raise UserError("no observations to fit (need sweep, forward or lateral runs)")
-    free = list(free) if free is not None else default_free(robot, obs, procs)
-    if not free:
-        raise UserError("no free parameters to fit")
-    for p in free:
-        param_value(robot, p)  # validates names
-    if len(set(free)) != len(free):
-        raise UserError("a free parameter is named twice")
+    procs, free = _fit_request(robot, obs, free, procedures)
     pred = Predictor(obs, procs)
     used = _usable(pred, robot)
     if used.sum() <= 0:
         raise UserError(f"no usable observations (all sweep speeds are below {MIN_SWEEP_SPEED:g} rad/s?)")
+    notes = _left_out(pred, used, robot)
+    start = _start_point(robot, obs, procs, free)
+    groups, sigma, unknown = _stated_noise(pred, used, notes)
+    say = progress or (lambda msg: None)
+    say(f"identifiability of {len(free)} parameters from {int(used.sum())} observations")
+    ident = _identify(_Problem(start, pred, free, used, sigma), robot, free, procs)
+    current = _warm_start(robot, start, obs, pred, procs, ident.active, ident.fixed, used, sigma, max_nfev, say)
+    prob, xa, J = _joint_fit(robot, current, pred, ident.active, used, sigma, groups, unknown, max_nfev, say)
+    xa, J, sigma_stated, stated_factor = _reweighted(prob, robot, ident.active, groups, used, xa, J, max_nfev, say)
+    fitted_robot = prob.robot_at(xa)
+    f = prob._cache[1] if prob._cache is not None and np.array_equal(prob._cache[0], xa) else prob.predict([xa])[0]
+    cv = _covariance(prob, pred, f, J, groups, used, sigma_stated, len(ident.active))
+    values = {p: param_value(fitted_robot, p) for p in free}
+    se = {p: float("nan") for p in free}
+    ci = {p: (float("nan"), float("nan")) for p in free}
+    for k, p in enumerate(ident.active):
+        se[p] = float(cv.se[k])
+        ci[p] = (values[p] - cv.tq * se[p], values[p] + cv.tq * se[p])
+    verdicts = ident.verdicts
+    confounded = _confounded(prob, robot, obs, procs, free, ident.active, xa, J, verdicts)
+    _final_verdicts(robot, prob, ident.active, values, se, ci, verdicts)
+    runs_used = sorted(set(cv.residuals.loc[cv.residuals["used"], "run"]))
+    notes += _misfit_notes(cv, stated_factor)
+    active = ident.active
+    return FitResult(
+        robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
+        cov=pd.DataFrame(cv.cov, index=active, columns=active),
+        corr=pd.DataFrame(cv.corr, index=active, columns=active),
+        condition_number=ident.cond, rank=ident.rank, identifiable=verdicts, residuals=cv.residuals,
+        chi2=cv.chi2, dof=cv.dof, runs_used=runs_used, procedures=procs, s2=cv.s2,
+        group_s2={g: v * stated_factor.get(g, 1.0) for g, v in cv.group_s2.items()}, group_dof=cv.group_dof,
+        initial={p: param_value(robot, p) for p in free},
+        fixed=ident.fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=cv.structure,
+        digest=fit_digest(pred, used, free),
+        date=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+    )
+
+
+def _fit_request(robot: Any, obs: Observations, free: Sequence[str] | None,
+                 procedures: Sequence[str] | None) -> tuple[list[str], list[str]]:
+    """The procedures that enter (those with rows) and the free parameters, checked."""
+    procs = [p for p in (procedures or DEFAULT_PROCEDURES) if len(obs.table(p))]
+    if not procs:
+        raise UserError("no observations to fit (need sweep, forward or lateral runs)")
+    names = list(free) if free is not None else default_free(robot, obs, procs)
+    if not names:
+        raise UserError("no free parameters to fit")
+    for p in names:
+        param_value(robot, p)  # validates names
+    if len(set(names)) != len(names):
+        raise UserError("a free parameter is named twice")
+    return procs, names
+
+
+def _left_out(pred: Predictor, used: np.ndarray, robot: Any) -> list[str]:
+    """Notes on the measured entries the fit leaves out (creeping ground wheels, slow sweep steps)."""
     notes: list[str] = []
     n_creep = int((np.isfinite(pred.measured) & creeping_ground_speeds(pred.table, pred.measured, robot)).sum())
     n_slow = int((np.isfinite(pred.measured) & ~used).sum()) - n_creep
@@ -580,14 +633,24 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         notes.append(f"{n_slow} sweep steady state(s) slower than "
                      f"{MIN_SWEEP_SPEED:g} rad/s left out: wheel stuck or in the "
                      "stiction/deadband region the model does not describe (see residuals)")
-    # start values: the paper's closed form for III.i
-    start = robot
-    if "sweep" in procs and {"a", "b"} <= set(free):
-        est = sweep_linear_estimate(robot, obs.sweep)
-        guess: dict[str, float] = {k: est[k] for k in ("a", "b", "c") if k in free}
-        if "c" in guess and guess["c"] <= 0:
-            guess.pop("c")
-        start = with_params(robot, guess)
+    return notes
+
+
+def _start_point(robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str]) -> Any:
+    """The start values: the paper's closed form for III.i (a, b, c) where the sweep is fitted."""
+    if "sweep" not in procs or not {"a", "b"} <= set(free):
+        return robot
+    est = sweep_linear_estimate(robot, obs.sweep)
+    guess: dict[str, float] = {k: est[k] for k in ("a", "b", "c") if k in free}
+    if "c" in guess and guess["c"] <= 0:
+        guess.pop("c")
+    return with_params(robot, guess)
+
+
+def _stated_noise(pred: Predictor, used: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(group of each entry "procedure/signal", sigma, unknown): each entry's stated standard
+    error; a group that mostly has none gets 1e-3 of its RMS for now (`unknown` marks them;
+    `_joint_fit` replaces it by the residual RMS of a first pass). Appends a note per such group."""
     sigma = pred.sigma.copy()
     unknown = ~np.isfinite(sigma) | (sigma <= 0)
     groups = pred.table[["procedure", "signal"]].astype(str).agg("/".join, axis=1).to_numpy()
@@ -604,13 +667,27 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
         m = (groups == g) & used
         vals = np.abs(pred.measured[m])
         sigma[(groups == g) & unknown] = max(1e-3 * float(np.sqrt(np.mean(vals ** 2))), 1e-12)
-    prob = _Problem(start, pred, free, used, sigma)
-    x0 = np.array([param_value(start, p) for p in free]) / prob.scale
-    # ---- identifiability at the start point: hold invisible combinations fixed
-    say = progress or (lambda msg: None)
-    say(f"identifiability of {len(free)} parameters from {int(used.sum())} observations")
-    J0 = prob.jacobian(x0)
-    rank_req, cond_req, null = _null_analysis(J0, free)
+    return groups, sigma, unknown
+
+
+@dataclass
+class _Identified:
+    """What the data can see at the start point: the parameters fitted (`active`), those held
+    at their robot-file values (`fixed`), the verdicts so far, rank and condition number of the
+    requested parameters' scaled Jacobian."""
+
+    active: list[str]
+    fixed: list[str]
+    verdicts: dict[str, Verdict]
+    rank: int
+    cond: float
+
+
+def _identify(prob: _Problem, robot: Any, free: list[str], procs: Sequence[str]) -> _Identified:
+    """Identifiability at the start point: parameters without any column are not identifiable;
+    each invisible combination holds its parameter of lowest `_fix_priority` fixed."""
+    J0 = prob.jacobian(np.array([param_value(prob.robot, p) for p in free]) / prob.scale)
+    rank_req, cond_req, _ = _null_analysis(J0, free)
     fixed: list[str] = []
     verdicts: dict[str, Verdict] = {}
     colnorm = np.linalg.norm(J0, axis=0)
@@ -639,7 +716,15 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     if not active:
         raise UserError("none of the free parameters can be identified from these observations: "
                         + "; ".join(f"{p}: {v.reason}" for p, v in verdicts.items()))
-    # ---- warm start: the paper's order (III.i -> III.ii -> III.iii), each procedure's own parameters
+    return _Identified(active, fixed, verdicts, rank_req, cond_req)
+
+
+def _warm_start(robot: Any, start: Any, obs: Observations, pred: Predictor, procs: Sequence[str],
+                active: list[str], fixed: list[str], used: np.ndarray, sigma: np.ndarray, max_nfev: int,
+                say: Callable[[str], None]) -> Any:
+    """The joint fit's start: the fixed parameters at their robot-file values, then (with more
+    than one procedure) each procedure's own parameters fitted to it alone, in the paper's order
+    (III.i -> III.ii -> III.iii)."""
     current = with_params(start, {p: param_value(robot, p) for p in fixed})
     if len(procs) > 1:
         for proc, names in STAGES:
@@ -651,7 +736,15 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
             sp = _Problem(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
             xs, _ = _solve(sp, sub, robot, np.array([param_value(current, p) for p in sub]) / sp.scale, max_nfev)
             current = sp.robot_at(xs)
-    # ---- the joint fit (twice when some sigmas were unknown: second pass with group RMS sigmas)
+    return current
+
+
+def _joint_fit(robot: Any, current: Any, pred: Predictor, active: list[str], used: np.ndarray, sigma: np.ndarray,
+               groups: np.ndarray, unknown: np.ndarray, max_nfev: int,
+               say: Callable[[str], None]) -> tuple[_Problem, np.ndarray, np.ndarray]:
+    """Every active parameter fitted to every procedure from `current`: (problem, x, weighted
+    Jacobian at x). Twice when some sigmas were unknown: the second pass with each such group's
+    residual RMS as its sigma (`sigma` is updated in place)."""
     prob = _Problem(current, pred, active, used, sigma)
     xa = np.array([param_value(current, p) for p in active]) / prob.scale
     passes = 2 if unknown[used].any() else 1
@@ -667,38 +760,66 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                 sigma[(groups == g) & unknown] = max(rms, 1e-12)
             prob.sigma = sigma
             prob._jcache = None
-    # ---- weighted by each large group's noise: the stated errors of different estimators are off
-    # by different factors (encoder speeds s^2 0.15-0.4, tape ~1 on the simulated robot); weighting
-    # by the stated ones alone is a consistent but inefficient estimator whose sandwich SEs are
-    # 8-22 % above the information the data hold (C_r, b, c), the information the planner counts
+    return prob, xa, J
+
+
+def _reweighted(prob: _Problem, robot: Any, active: list[str], groups: np.ndarray, used: np.ndarray,
+                xa: np.ndarray, J: np.ndarray, max_nfev: int,
+                say: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
+    """The joint fit again with each large group weighted by its own noise, when that moves a
+    group's weight by more than 5 % (`_noise_reweighting`): the stated errors of different
+    estimators are off by different factors (encoder speeds s^2 0.15-0.4, tape ~1 on the
+    simulated robot); weighting by the stated ones alone is a consistent but inefficient
+    estimator whose sandwich SEs are 8-22 % above the information the data hold (C_r, b, c),
+    the information the planner counts. Returns (x, Jacobian, the stated sigmas, each group's
+    factor on its variance)."""
     f = prob.predict([xa])[0]
     reweight = _noise_reweighting(groups, used, prob.weighted(f), J)
     stated_factor = {str(g): 1.0 for g in np.unique(groups)}
-    sigma_stated = sigma.copy()
+    sigma_stated = prob.sigma.copy()
     if reweight is not None:
         say("joint fit again, each group weighted by its own noise")
         stated_factor = {str(g): float(reweight[groups == g][0]) ** 2 for g in np.unique(groups)}
-        sigma = sigma * reweight
-        prob.sigma = sigma
+        prob.sigma = prob.sigma * reweight
         prob._jcache = None
         prob._cache = None
         xa, J = _solve(prob, active, robot, xa, max_nfev)
-    fitted_robot = prob.robot_at(xa)
-    f = prob._cache[1] if prob._cache is not None and np.array_equal(prob._cache[0], xa) else prob.predict([xa])[0]
+    return xa, J, sigma_stated, stated_factor
+
+
+@dataclass
+class _Covariance:
+    """The fit's statistics at its solution (see `_covariance`)."""
+
+    chi2: float
+    dof: int
+    s2: float
+    cov: np.ndarray
+    se: np.ndarray
+    corr: np.ndarray
+    tq: float
+    group_s2: dict[str, float]
+    group_dof: dict[str, float]
+    residuals: pd.DataFrame
+    structure: dict[str, dict[str, Any]]
+
+
+def _covariance(prob: _Problem, pred: Predictor, f: np.ndarray, J: np.ndarray, groups: np.ndarray,
+                used: np.ndarray, sigma_stated: np.ndarray, n_active: int) -> _Covariance:
+    """chi^2, dof, the sandwich covariance (SI), standard errors, correlations and the 95 %
+    t quantile. Per-group noise scale (Birge ratio of each procedure/signal group, with the
+    group's share of the degrees of freedom from the leverages), then the sandwich covariance: a
+    group whose stated errors are too small (or whose residual carries structure) widens the
+    intervals of the parameters it informs, not of all."""
     r = prob.weighted(f)
     n_used = int(used.sum())
-    dof = max(n_used - len(active), 1)
+    dof = max(n_used - n_active, 1)
     chi2 = float(r @ r)
-    s2 = chi2 / dof
     JTJ = J.T @ J
     try:
         A = np.linalg.inv(JTJ)
     except np.linalg.LinAlgError:
         A = np.linalg.pinv(JTJ)
-    # Per-group noise scale (Birge ratio of each procedure/signal group, with the group's share of
-    # the degrees of freedom from the leverages), then the sandwich covariance: a group whose
-    # stated errors are too small (or whose residual carries structure) widens the intervals of
-    # the parameters it informs, not of all.
     lev = np.einsum("ij,jk,ik->i", J, A, J)
     g_used = groups[used]
     s2_row = np.empty(n_used)
@@ -727,13 +848,14 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     tq = float(special.stdtrit(dof, 0.975))
     d = np.where(se_a > 0, se_a, 1.0)
     corr = cov / np.outer(d, d)
-    values = {p: param_value(fitted_robot, p) for p in free}
-    se = {p: float("nan") for p in free}
-    ci = {p: (float("nan"), float("nan")) for p in free}
-    for k, p in enumerate(active):
-        se[p] = float(se_a[k])
-        ci[p] = (values[p] - tq * se[p], values[p] + tq * se[p])
-    # ---- conditional parameters: confounded with a fixed constant
+    return _Covariance(chi2, dof, chi2 / dof, cov, se_a, corr, tq, group_s2, group_dof, residuals, structure)
+
+
+def _confounded(prob: _Problem, robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str],
+                active: list[str], xa: np.ndarray, J: np.ndarray, verdicts: dict[str, Verdict]) -> list[dict[str, Any]]:
+    """Conditional parameters: fitted ones the data cannot separate from a fixed constant (the
+    sweep without current: k_e; forward runs without a sweep: c). Marks them in `verdicts` and
+    returns what each constant is confounded with."""
     confounded: list[dict[str, Any]] = []
     nuisance = []
     if "sweep" in procs and not obs.has_current and "k_e" not in free:
@@ -758,27 +880,39 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                            "eta k_t k_e / R_a" if nu == "k_e" else ""))
             confounded.append({"fixed": nu, "with": [p for p in comb if p != nu], "ratio": ratio,
                                "combination": _combination(comb)})
+    return confounded
+
+
+def _final_verdicts(robot: Any, prob: _Problem, active: list[str], values: Mapping[str, float],
+                    se: Mapping[str, float], ci: Mapping[str, tuple[float, float]],
+                    verdicts: dict[str, Verdict]) -> None:
+    """'at bound' for a fitted value on a physical bound or at zero; 'identified' for the rest."""
     for k, p in enumerate(active):
         pinned = _pinned(values[p], param_bounds(robot, p), float(prob.scale[k]))
         if pinned:
             verdicts[p] = Verdict("at bound", f"{pinned}: the data push it past its physical range (check the "
                                               "measurements that inform it); its standard error means nothing")
-    for k, p in enumerate(active):
+    for p in active:
         if p not in verdicts:
             rel = se[p] / abs(values[p]) if values[p] else math.inf
             verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}"
                                   + (" (consistent with zero)" if ci[p][0] <= 0 <= ci[p][1] else ""))
-    runs_used = sorted(set(residuals.loc[residuals["used"], "run"]))
-    if s2 > MISFIT_S2:
-        notes.append(f"chi2/dof = {s2:.3g}: residuals exceed the measurement noise; the model misses "
+
+
+def _misfit_notes(cv: _Covariance, stated_factor: Mapping[str, float]) -> list[str]:
+    """Notes where the residuals exceed the noise (overall, per large group against its stated
+    noise) or are smooth along speed."""
+    notes: list[str] = []
+    if cv.s2 > MISFIT_S2:
+        notes.append(f"chi2/dof = {cv.s2:.3g}: residuals exceed the measurement noise; the model misses "
                      "something (see residuals / omnibench diagnose); intervals are widened by s")
-    for g, v in group_s2.items():  # large groups are weighted by their own noise: judge each against its stated one
+    for g, v in cv.group_s2.items():  # large groups are weighted by their own noise: judge each against its stated one
         v_stated = v * stated_factor.get(g, 1.0)
-        if v_stated > MISFIT_S2 and group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF:
+        if v_stated > MISFIT_S2 and cv.group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF:
             notes.append(f"{g}: chi2/dof = {v_stated:.3g} against its stated noise: residuals exceed the "
                          "measurement noise; the model misses something, or the noise is under-stated (see "
                          "residuals / omnibench diagnose); intervals are widened by it")
-    for g, st in structure.items():
+    for g, st in cv.structure.items():
         if st["z"] > STRUCTURE_Z:
             notes.append(f"{g}: residuals are smooth along speed (lag-1 autocorrelation {st['rho']:.2f} over "
                          f"{st['pairs']} neighbour pairs, {st['z']:.1f} sigma above noise): structure the model "
@@ -786,17 +920,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
                          "omnibench diagnose)"
                          + (f"; its variance is inflated x{st['variance_inflation']:.2g} for the correlation"
                             if "variance_inflation" in st else ""))
-    return FitResult(
-        robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
-        cov=pd.DataFrame(cov, index=active, columns=active), corr=pd.DataFrame(corr, index=active, columns=active),
-        condition_number=cond_req, rank=rank_req, identifiable=verdicts, residuals=residuals, chi2=chi2, dof=dof,
-        runs_used=runs_used, procedures=procs, s2=s2,
-        group_s2={g: v * stated_factor.get(g, 1.0) for g, v in group_s2.items()}, group_dof=group_dof,
-        initial={p: param_value(robot, p) for p in free},
-        fixed=fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=structure,
-        digest=fit_digest(pred, used, free),
-        date=_dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-    )
+    return notes
 
 
 def fit_digest(pred: Predictor, used: np.ndarray, free: Sequence[str]) -> str:

@@ -51,7 +51,8 @@ def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
             todo[key] = b
     if todo:
         rows = np.fromiter(todo.values(), dtype=np.int64, count=len(todo))
-        lam = _decay_rates_of_rows(*(np.ascontiguousarray(a[rows]) for a in arrays), lay)
+        X0r, RVr, Pr, ENr, Rmr, Smr, Minvr, Mr = (np.ascontiguousarray(a[rows]) for a in arrays)
+        lam = _decay_rates_of_rows(X0r, RVr, Pr, ENr, Rmr, Smr, Minvr, Mr, lay)
         if len(cache) + len(todo) > 100_000:
             cache.clear()
         for key, x in zip(todo, lam):
