@@ -70,3 +70,19 @@ def test_model_fitted_to_these_runs_is_not_fitted_again(robot, truth, tmp_path):
     assert refit_needed(model, other, ["sweep"], info)  # other runs
     assert refit_needed(model, obs, ["sweep", "forward"], info)  # other procedures
     assert refit_needed(robot, obs, ["sweep"], {})  # a plain robot file
+
+
+def test_a_row_with_copied_blocks_is_cached_for_the_groups_it_simulated(robot, obs):
+    """The cache is per group: a Jacobian row whose sweep block was copied (same_as_first) is
+    found again for the forward runs it simulated; only its sweep block is simulated later."""
+    from omnibench.analysis.predictor import Predictor
+
+    pred = Predictor(obs)
+    base = robot.replace(a_r=2.5)
+    shifted = base.replace(C_r=0.03)  # rolling resistance does not act upside down
+    full = Predictor(obs).predict([base, shifted])
+    pred.predict([base, shifted], same_as_first={("sweep",): {1}})
+    n = pred.simulated
+    out = pred.predict([shifted])
+    assert pred.simulated == n + 1  # the sweep group only: the forward block came from the cache
+    np.testing.assert_array_equal(out[0], full[1])
