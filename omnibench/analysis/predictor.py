@@ -75,6 +75,7 @@ class _Group:
     #: simulate to a whole number of record intervals (the last sample is then recorded)
     round_end: bool = False
     _built: tuple | None = None
+    _distinct: tuple[list[int], np.ndarray] | None = None
 
     def add(self, t_cmd, U, t_end: float, scen: Scenario, extract: Any, v_batt: float = float("nan")) -> None:
         self.schedules.append((np.asarray(t_cmd, dtype=float), np.asarray(U, dtype=float)))
@@ -83,6 +84,25 @@ class _Group:
         self.v_batt.append(float(v_batt))
         self.extract.append(extract)
         self._built = None
+        self._distinct = None
+
+    def distinct(self) -> tuple[list[int], np.ndarray]:
+        """(first index of every distinct trajectory, index into those of each trajectory):
+        trajectories with the same duties, world and supply (a campaign repeats a forward run at
+        one duty) are one simulation, bit for bit the same numbers."""
+        if self._distinct is None:
+            _, U, _, _ = self.built()
+            seen: dict[tuple, int] = {}
+            first: list[int] = []
+            inverse = np.empty(U.shape[0], dtype=int)
+            for b in range(U.shape[0]):
+                key = (U[b].tobytes(), id(self.scen[b]), np.float64(self.v_batt[b]).tobytes())
+                if key not in seen:
+                    seen[key] = len(first)
+                    first.append(b)
+                inverse[b] = seen[key]
+            self._distinct = (first, inverse)
+        return self._distinct
 
     def built(self) -> tuple[np.ndarray, np.ndarray, float, float]:
         """(t_cmd, U (B, K, 4), shift s, t_end s in the simulation's frame)."""
@@ -370,9 +390,13 @@ class Predictor:
         n = U.shape[0]
         P = len(robots)
         self.simulated += P
-        rob = [with_supply(r, g.v_batt[k]) for r in robots for k in range(n)]
-        res = simulate_batch(rob, g.scen * P, t_cmd, np.concatenate([U] * P), t_end,
+        first, inverse = g.distinct()
+        m = len(first)
+        rob = [with_supply(r, g.v_batt[k]) for r in robots for k in first]
+        res = simulate_batch(rob, [g.scen[k] for k in first] * P, t_cmd, np.concatenate([U[first]] * P), t_end,
                              dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps, adaptive=True)
+        if m < n:  # every trajectory's rows, repeats copied from their first
+            res.array = res.array[(np.arange(P)[:, None] * m + inverse[None, :]).ravel()]
         slopes = self._drive_slopes(g, res, shift, P)
         row = np.full(len(self.entries), np.nan)
         out = np.empty((P, len(idx)))

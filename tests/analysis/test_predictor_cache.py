@@ -86,3 +86,33 @@ def test_a_row_with_copied_blocks_is_cached_for_the_groups_it_simulated(robot, o
     out = pred.predict([shifted])
     assert pred.simulated == n + 1  # the sweep group only: the forward block came from the cache
     np.testing.assert_array_equal(out[0], full[1])
+
+
+def test_repeated_runs_are_simulated_once_with_the_same_numbers(robot, obs, monkeypatch):
+    """Trajectories with the same duties, world and supply (a campaign repeats a forward run at
+    one duty) are one simulation: the predictions equal those of simulating every one."""
+    from omnibench.analysis import predictor as predictor_module
+    from omnibench.analysis.predictor import Predictor, _Group
+
+    g = Predictor(obs).groups[("forward",)]
+    first, inverse = g.distinct()
+    assert len(first) < len(g.scen)  # the simulated campaign repeats its forward duties
+    _, U, _, _ = g.built()
+    for b, k in enumerate(inverse):
+        np.testing.assert_array_equal(U[b], U[first[k]])
+        assert g.scen[b] == g.scen[first[k]]
+    sizes: list[int] = []
+    real = predictor_module.simulate_batch
+
+    def counting(robots, *args, **kw):
+        sizes.append(len(robots))
+        return real(robots, *args, **kw)
+
+    monkeypatch.setattr(predictor_module, "simulate_batch", counting)
+    robots = [robot, robot.replace(C_r=0.03)]
+    deduplicated = Predictor(obs).predict(robots)
+    assert sizes == [2 * 32, 2 * len(first)]
+    monkeypatch.setattr(_Group, "distinct", lambda self: (list(range(len(self.scen))),
+                                                          np.arange(len(self.scen))))
+    every = Predictor(obs).predict(robots)
+    np.testing.assert_array_equal(deduplicated, every)
