@@ -33,13 +33,13 @@ Analyse = Callable[..., dict[str, Any]]
 
 
 def procedure_files(folder: Path | None) -> dict[str, Path]:
-    """The four procedure files: <folder>/<procedure>.toml, else the shipped ones."""
+    """Every registered procedure's file, in registry order: <folder>/<procedure>.toml, else the shipped one."""
     out = {}
     for p in PROCEDURES:
         if folder is not None:
             f = Path(folder) / f"{p}.toml"
             if not f.is_file():
-                raise UserError(f"{folder}: no {p}.toml (the campaign needs all four procedure files)")
+                raise UserError(f"{folder}: no {p}.toml (the campaign needs every procedure's file)")
             out[p] = f
         else:
             out[p] = default_procedure_path(p)

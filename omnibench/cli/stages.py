@@ -27,9 +27,9 @@ def _analysis_command(name: str) -> Any | None:
     import importlib
     import importlib.util
 
-    from omnibench.cli import COMMANDS
+    from omnibench.cli import commands
 
-    module = COMMANDS[name][0]
+    module = commands()[name][0]
     try:
         if importlib.util.find_spec(module) is None:
             return None
