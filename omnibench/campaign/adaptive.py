@@ -493,7 +493,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     """`omnibench campaign --adaptive`: the adaptive loop on `port` through the runner, then the
     energy trajectories, the analysis stages and the report (with the design's rounds).
 
-    analyse: as for `run_campaign` (the command line passes omnibench.cli.stages.run_analysis).
+    analyse: as for `run_campaign` (the command line passes omnibench.campaign.stages.run_analysis).
     prior_runs: run folders of the robot's previous campaign: their fit's values and noise plan
     round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__

@@ -1,9 +1,8 @@
 """The campaign: every procedure in turn, then fit, validate-energy and diagnose, one report.
 
-The analysis stages are run by the caller's `analyse` function (the command line runs the
-installed commands `omnibench fit`, `validate-energy`, `diagnose`; see omnibench.cli.stages), so
-this module never imports the command line; the report says which stages ran, which were
-skipped and why.
+The analysis stages are run by the caller's `analyse` function (the command line passes
+omnibench.campaign.stages.run_analysis, which calls what `omnibench fit`, `validate-energy` and
+`diagnose` do as functions); the report says which stages ran, which were skipped and why.
 """
 
 from __future__ import annotations
@@ -71,7 +70,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
                  resume: bool = False, without_current: bool = False,
                  operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
-                 verbosity: int = 0, stage_options: dict[str, tuple[str, ...]] | None = None) -> dict[str, Any]:
+                 verbosity: int = 0, stage_options: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -79,8 +78,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     hold runs yet (the analysis reads every run there, so two campaigns must not mix).
 
     analyse(runs_dir, out, robot_file, echo, stages) runs the analysis stages and returns their
-    results by name (the command line passes omnibench.cli.stages.run_analysis); None skips them.
-    stage_options: more options for a stage's command, by stage name (e.g. diagnose's --candidates).
+    results by name (the command line passes omnibench.campaign.stages.run_analysis); None skips them.
+    stage_options: more options for a stage, by stage name (e.g. {"diagnose": {"candidates": [...]}}).
 
     Ctrl-C (KeyboardInterrupt) at any point: the motors are stopped (the procedure's run is marked
     aborted), report.md and campaign.json are written with what finished and where it stopped

@@ -41,8 +41,8 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
     results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
     from omnibench.cli import verbosity
-    from omnibench.cli.params import check_out_folder
     from omnibench.runs import read_run
+    from omnibench.runs.check import check_out_folder
     from omnibench.runs.tfm import file_digest, import_tfm, parse_signs
 
     check_out_folder(out)

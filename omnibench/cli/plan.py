@@ -91,10 +91,9 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
     from omnibench.analysis.model_file import load_model
     from omnibench.analysis.observations import Observations
     from omnibench.campaign.run import procedure_files
-    from omnibench.cli.params import check_out_folder
     from omnibench.model import default_robot
     from omnibench.procedures import COMMAND_OF
-    from omnibench.runs.check import checked_runs
+    from omnibench.runs.check import check_out_folder, checked_runs
 
     check_out_folder(out)
     runs = tuple(checked_runs(runs)) if runs else ()
