@@ -42,6 +42,7 @@ from omnibench.campaign.run import Analyse
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import World
+from omnibench.runs.store import run_dirs
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
@@ -519,7 +520,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
 
         prior = fit(robot, Observations.from_runs(tuple(checked_runs(prior_runs)), robot))
     runs_dir = out / "runs"
-    if runs_dir.is_dir() and any(runs_dir.glob("*/run.json")):
+    if run_dirs(runs_dir):
         raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
