@@ -61,9 +61,10 @@ class Round:
     files: list[str]
     robot_seconds: float  # cumulative, the cost model's
     actions: dict[str, int]  # cumulative
-    se: dict[str, float] = field(default_factory=dict)  # fitted SE after the round
-    expected_se: dict[str, float] = field(default_factory=dict)  # the plan's prediction for its whole design
-    block_expected_se: dict[str, float] = field(default_factory=dict)  # prediction for the block that ran
+    # SEs by parameter (None: not finite, not estimated)
+    se: dict[str, float | None] = field(default_factory=dict)  # fitted SE after the round
+    expected_se: dict[str, float | None] = field(default_factory=dict)  # the plan's prediction for its whole design
+    block_expected_se: dict[str, float | None] = field(default_factory=dict)  # prediction for the block that ran
 
 
 @dataclass
@@ -133,7 +134,10 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
     points = prior_points(res.robot, unmeasured)
     options: list[list[Unit]] = []
     for pt in points:
-        b = half_information_pilot(block, lambda t, _r=at_point(res, pt): replan_at(_r, t), targets)
+        def replan_here(t: dict[str, tuple[float, bool]], _r: Any = at_point(res, pt)) -> Any:
+            return replan_at(_r, t)
+
+        b = half_information_pilot(block, replan_here, targets)
         if not any(sorted((u.candidate.label, u.reps) for u in b) == sorted((u.candidate.label, u.reps) for u in o)
                    for o in options):
             options.append(b)
@@ -310,11 +314,13 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
         if spent_s >= budget_seconds or n_acts >= budget_actions:
             reason = "budget spent"
             break
-        have = set(obs.procedures()) if obs is not None else set()
+        have: set[str] = set(obs.procedures()) if obs is not None else set()
         if fell_back:
             reason = fell_back
             break
         misfit: list[str] = []
+        deferred: list[str] = []
+        aims: Mapping[str, tuple[float, bool]] = targets
         if not floor_checked and res is not None and all(c.procedure in have for c in floor):
             # judged once, on the diagnostic floor (one pair per level, made for diagnosis): later rounds
             # repeat levels, and identical levels whose residuals agree read as structure to the fit
@@ -330,7 +336,7 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
             if not block:
                 reason = fell_back
                 break
-            design, deferred, why = None, [], fell_back
+            design, why = None, fell_back
             log("design_misfit", {"round": r, "why": fell_back, "misses": misfit})
         elif prior is not None and res is None:  # round 1 from the previous campaign's values and noise
             design = _plan_from_prior(prior, targets, space, costs, current=current, start=world,
@@ -341,7 +347,6 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
                 reason = "the plan adds nothing (targets refused or out of reach within the budget)"
                 log("design_stop", {"round": r, "why": reason, "notes": design.notes})
                 break
-            deferred, aims = [], dict(targets)
             why = "largest drop of the weighted A-criterion per second of cost, at the previous campaign's noise"
             block = ground_pilot(design.units, have, floor) + [u for u in design.units
                                                                if u.candidate.world.mode == "upside_down"]
@@ -358,7 +363,6 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
                 reason = "the plan adds nothing (targets refused or out of reach within the budget)"
                 log("design_stop", {"round": r, "why": reason, "notes": design.notes})
                 break
-            deferred = []
             why = "largest drop of the weighted A-criterion per second of cost"
             if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
                 # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
@@ -382,7 +386,7 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
                             sum(u.candidate.measurements * u.reps for u in b), world, end=None)), current)
         written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
         block_design = _block_prediction(robot, pres, obs, current, block, prior)
-        rec = {"round": r, "why": why
+        rec: dict[str, Any] = {"round": r, "why": why
                + (f"; in this pose only what {', '.join(p for p in targets if p not in deferred and p not in refused)} "
                   f"need (the later poses measure {', '.join(deferred)})" if deferred else ""),
                "fit_se": {p: _finite(v) for p, v in se.items()}, "targets": tabs,
