@@ -52,7 +52,7 @@ def _available() -> list[str]:
 
 
 class LazyGroup(click.Group):
-    """Resolves subcommands from COMMANDS on demand."""
+    """Resolves subcommands from `commands()` on demand."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return _available()
