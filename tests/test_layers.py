@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "omnibench"
 #: (its first name after `omnibench.`); "base" is the root package's own small modules.
 #: Units in the same layer know nothing of each other.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("base",),                                   # omnibench/__init__, errors, files, resources, locks
+    ("base",),                                   # omnibench/__init__, errors, files, resources, locks, progress
     ("model",),                                  # the physics
     ("effects",),                                # candidate effects registered into the model's terms
     ("worlds", "link", "procedures", "runs"),    # test physics, bytes on a port, plans, run directories
@@ -28,7 +28,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("campaign",),                               # campaigns: bench then analysis, reports
     ("cli",),                                    # the command line (and `python -m omnibench`)
 )
-BASE = {"omnibench", "omnibench.errors", "omnibench.files", "omnibench.resources", "omnibench.locks"}
+BASE = {"omnibench", "omnibench.errors", "omnibench.files", "omnibench.resources", "omnibench.locks",
+        "omnibench.progress"}
 RANK = {unit: k for k, layer in enumerate(LAYERS) for unit in layer}
 
 #: Imports allowed against the layers, each with its reason. Add none.

@@ -240,10 +240,10 @@ def _run_robot(run: Any, robot: Robot | None) -> Robot:
     from omnibench.model import default_robot
     from omnibench.model.robot import robot_from_dict
 
-    data = run.metadata.get("robot")
+    data = run.info.robot
     if isinstance(data, dict):
         try:
-            return robot_from_dict(data, path=str(run.path / "run.json"))
+            return robot_from_dict(data, path=str(run.info.file))
         except UserError:
             pass
     return default_robot()
@@ -270,7 +270,7 @@ def _trace(samples: pd.DataFrame, t0: float | None, cpr: float, relative: bool =
 def run_key(run: Any) -> str:
     """The key a run's rows carry: its run id (validated by omnibench.runs: a file-name safe
     name; two folders holding one id are refused, never merged or counted twice)."""
-    return str(getattr(run, "run_id", None) or run.metadata.get("run_id") or run.path.name)
+    return str(run.run_id)
 
 
 def supply_at_rest(samples: pd.DataFrame) -> float:
@@ -286,15 +286,14 @@ def supply_at_rest(samples: pd.DataFrame) -> float:
     return float(np.median(v[sel])) if sel.any() else float("nan")
 
 
-def _firmware_timing(meta: Mapping[str, Any]) -> dict[str, Any]:
+def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str, Any]:
     """Where the robot was and how its firmware timed the commands (runs.tfm records both):
     `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s),
     and, when the timing is assumed, `timing_sketch` (the sketch assumed) and `timing_alternatives`
     (the other documented timings)."""
     out: dict[str, Any] = {}
-    if meta.get("mode") in ("ground", "upside_down"):
-        out["mode"] = meta["mode"]
-    ft = meta.get("firmware_timing")
+    if mode in ("ground", "upside_down"):
+        out["mode"] = mode
     if isinstance(ft, Mapping):
         order = ft.get("command_order")
         if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
@@ -318,14 +317,14 @@ def _from_run(run: Any, robot: Robot | None, rid: str | None = None) -> Observat
                         f"({', '.join(RUN_PROCEDURES)})")
     rid = rid or run_key(run)
     rb = _run_robot(run, robot)
-    cpr = float(run.metadata.get("counts_per_rev") or rb.counts_per_rev)
-    imported = bool(run.metadata.get("imported", False))
+    cpr = float(run.info.counts_per_rev or rb.counts_per_rev)
+    imported = run.info.imported
     # omnibench boards report, with each sample, the duty that acted over the interval before it;
     # the 2019 Arduino logs printed the command that acts from the sample on (predictor.DUTY_TIMINGS)
     info = {"procedure": run.procedure, "path": str(run.path), "status": run.status,
-            "counts_per_rev": cpr, "source": run.metadata.get("source"), "imported": imported,
-            "duty_timing": str(run.metadata.get("duty_timing") or ("from_sample" if imported else "interval_before"))}
-    info.update(_firmware_timing(run.metadata))
+            "counts_per_rev": cpr, "source": run.info.source, "imported": imported,
+            "duty_timing": str(run.info.duty_timing or ("from_sample" if imported else "interval_before"))}
+    info.update(_firmware_timing(run.info.mode, run.info.firmware_timing))
     info["V_batt"] = supply_at_rest(run.samples)
     obs = Observations(runs={rid: info})
     steps = run.steps

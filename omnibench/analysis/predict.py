@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import commands_from_trace, run_mode, with_supply
+from omnibench.model.robot import Robot
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate
 
@@ -66,7 +66,7 @@ def _scenario(obs: Observations, proc: str, run: str, step: int) -> Scenario:
     return Scenario(mode="ground", payload=payload, command_order=order)
 
 
-def replay(robot: Any, trace: pd.DataFrame, scenario: Scenario, timing: str = "from_sample",
+def replay(robot: Robot, trace: pd.DataFrame, scenario: Scenario, timing: str = "from_sample",
            offset: float = 0.0) -> pd.DataFrame:
     """Simulate the trace's logged duties (`timing`: see predictor.DUTY_TIMINGS); measured and
     predicted signals at the sample times. `offset` (s) shifts the logged schedule (the
@@ -146,7 +146,7 @@ def _trace_groups(obs: Observations, run: str, proc: str) -> dict[int, pd.DataFr
     return {k[1]: obs.traces[k] for k in keys if len(obs.traces[k]) >= 3}
 
 
-def predict_runs(robot: Any, obs: Observations, *, profile_timing: bool = False) -> list[RunPrediction]:
+def predict_runs(robot: Robot, obs: Observations, *, profile_timing: bool = False) -> list[RunPrediction]:
     """Every run of `obs` replayed through `robot` with its own firmware timing; with
     `profile_timing`, a run of unknown firmware under each documented sketch's timing, the better
     one kept (module docstring; leave-one-run-out profiles its own way, heldout_runs.py)."""
@@ -178,7 +178,7 @@ def predict_runs(robot: Any, obs: Observations, *, profile_timing: bool = False)
     return out
 
 
-def _predict_run(robot: Any, obs: Observations, run: str) -> RunPrediction:
+def _predict_run(robot: Robot, obs: Observations, run: str) -> RunPrediction:
     """One run of `obs` replayed through `robot` with the timing `obs` records for it."""
     from omnibench.analysis.fitting import predict_observations
 

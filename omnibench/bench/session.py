@@ -27,6 +27,7 @@ from omnibench.procedures import (
     stall_current,
     step_distance_bound,
 )
+from omnibench.runs.store import is_run_dir
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
@@ -207,13 +208,12 @@ def run_command(
         from omnibench.runs.record import check_resumable
 
         info, _ = check_resumable(run_dir, procedure)  # every file checked; nothing written yet
-        meta = info.raw
         robot, robot_text, robot_name = load_robot_file(run_dir / "robot.toml")
-        robot_name = meta.get("robot_file") or robot_name
+        robot_name = info.robot_file or robot_name
         plan = load_plan(run_dir / "procedure.toml", robot, expect=procedure)
-        if meta.get("steps_planned") not in (None, len(plan.steps)):
+        if info.steps_planned not in (None, len(plan.steps)):
             raise UserError(f"{run_dir}: procedure.toml expands to {len(plan.steps)} steps, "
-                            f"run.json planned {meta.get('steps_planned')}")
+                            f"run.json planned {info.steps_planned}")
     else:
         robot, robot_text, robot_name = load_robot_file(robot_file)
         pfile = Path(procedure_file) if procedure_file else default_procedure_path(procedure)
@@ -221,7 +221,7 @@ def run_command(
         out_path = Path(out)
         if out_path.exists() and not out_path.is_dir():
             raise UserError(f"--out {out_path}: exists and is not a directory (runs are written into a directory)")
-        if (out_path / "run.json").is_file():
+        if is_run_dir(out_path):
             raise UserError(f"--out {out_path}: is a run directory; give the folder that should hold the new run, "
                             "or --resume it")
     if measurement_noise is not None and not 0 <= measurement_noise <= 1:

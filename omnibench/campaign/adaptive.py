@@ -42,6 +42,7 @@ from omnibench.campaign.run import Analyse
 from omnibench.errors import UserError
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import World
+from omnibench.runs.store import run_dirs
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
@@ -60,9 +61,10 @@ class Round:
     files: list[str]
     robot_seconds: float  # cumulative, the cost model's
     actions: dict[str, int]  # cumulative
-    se: dict[str, float] = field(default_factory=dict)  # fitted SE after the round
-    expected_se: dict[str, float] = field(default_factory=dict)  # the plan's prediction for its whole design
-    block_expected_se: dict[str, float] = field(default_factory=dict)  # prediction for the block that ran
+    # SEs by parameter (None: not finite, not estimated)
+    se: dict[str, float | None] = field(default_factory=dict)  # fitted SE after the round
+    expected_se: dict[str, float | None] = field(default_factory=dict)  # the plan's prediction for its whole design
+    block_expected_se: dict[str, float | None] = field(default_factory=dict)  # prediction for the block that ran
 
 
 @dataclass
@@ -132,7 +134,10 @@ def pilot_over_prior(block: list[Unit], res: Any, obs: Any, targets: Mapping[str
     points = prior_points(res.robot, unmeasured)
     options: list[list[Unit]] = []
     for pt in points:
-        b = half_information_pilot(block, lambda t, _r=at_point(res, pt): replan_at(_r, t), targets)
+        def replan_here(t: dict[str, tuple[float, bool]], _r: Any = at_point(res, pt)) -> Any:
+            return replan_at(_r, t)
+
+        b = half_information_pilot(block, replan_here, targets)
         if not any(sorted((u.candidate.label, u.reps) for u in b) == sorted((u.candidate.label, u.reps) for u in o)
                    for o in options):
             options.append(b)
@@ -263,6 +268,64 @@ def _fit(robot: Robot, obs: Any, previous: Any = None) -> Any:
         return None
 
 
+@dataclass(frozen=True)
+class _Setting:
+    """What every round of one adaptive campaign shares and never changes."""
+
+    robot: Robot
+    targets: Mapping[str, tuple[float, bool]]  #: parameter -> (target SE, relative?)
+    files: Mapping[str, Path]  #: the lab's procedure files, by procedure
+    folder: Path  #: where each round's procedure files are written
+    space: Space  #: the candidate steps the lab's files allow
+    floor: list[Any]  #: the diagnostic floor's candidates
+    costs: Costs
+    current: bool  #: the battery current is logged
+    budget_seconds: float  #: robot time, s
+    budget_actions: float  #: operator actions
+    log: Callable[[str, dict[str, Any]], None]
+    prior: Any  #: the previous campaign's FitResult, or None
+
+
+@dataclass
+class _State:
+    """What the loop knows between rounds (the data, the fit, where the robot is, what was spent)."""
+
+    obs: Any = None  #: Observations of every block run so far (None before the first)
+    res: Any = None  #: the fit of them (None before data, or when the fit failed)
+    world: World | None = None  #: the robot's world after the last block
+    spent_s: float = 0.0  #: robot time spent, s (the cost model's)
+    acts: dict[str, int] = field(default_factory=lambda: {"flip": 0, "wheels": 0, "payload": 0, "measure": 0})
+    rounds: list[Round] = field(default_factory=list)
+    refused: dict[str, str] = field(default_factory=dict)  #: targets a plan refused, with why
+    initial_se: dict[str, float] = field(default_factory=dict)  #: the SEs before round 1
+    done: dict[Any, int] = field(default_factory=dict)  #: pairs of each candidate run so far (the repetition cap)
+    fell_back: str = ""  #: why the rest of the lab's grid ran instead of a plan (the model misses something)
+    floor_checked: bool = False  #: the diagnostic floor's fit was judged for misfit (once)
+
+
+@dataclass
+class _View:
+    """One round's reading of the data so far."""
+
+    se: dict[str, float]  #: fitted SE per target (inf: not estimated)
+    tabs: dict[str, float]  #: each target as an absolute SE
+    pres: Any  #: the fit the plans see (the previous campaign's noise where no data yet)
+    have: set[str]  #: procedures with data
+    n_acts: int  #: operator actions so far
+    live: list[str]  #: the targets no plan had refused when the round began
+
+
+@dataclass
+class _Block:
+    """What a round runs: its steps, the design they come from (None: the rest of the lab's grid),
+    why, and the targets left to the later poses."""
+
+    units: list[Unit]
+    design: Any
+    why: str
+    deferred: list[str] = field(default_factory=list)
+
+
 def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files: Mapping[str, Path],
                   execute: Callable[[list[tuple[str, Path]], int], Any], folder: Path, *,
                   costs: Costs = Costs(), limits: Limits = Limits(), current: bool = True,
@@ -270,148 +333,204 @@ def adaptive_loop(robot: Robot, targets: Mapping[str, tuple[float, bool]], files
                   log: Callable[[str, dict[str, Any]], None] = lambda kind, rec: None,
                   max_rounds: int = MAX_ROUNDS, space: Space | None = None, prior: Any = None) -> AdaptiveResult:
     """Plan, run (`execute(files, round) -> Observations`), fit, re-plan; see the module doc.
-    prior: the FitResult of the robot's previous campaign (its values and noise), or None."""
+    prior: the FitResult of the robot's previous campaign (its values and noise), or None.
+
+    Each round: `_read` (fit all data so far), `_stop` (targets met, rounds or budget spent, the
+    lab's grid already run), `_choose` (the block to run: the lab's grid when the model misses
+    something, else the plan's first block or a pilot), `_run` (write, execute, account)."""
+    space = space or space_from_files(robot, files, limits)
+    setting = _Setting(robot, targets, files, folder, space, diagnostic_floor(robot, files, space), costs, current,
+                       budget_seconds, budget_actions, log, prior)
+    st = _State()
+    met, reason = False, f"stopped after {max_rounds} rounds"
+    start_robot = prior.robot if prior is not None else robot
+    tabs: dict[str, float] = {}
+    for r in range(1, max_rounds + 2):
+        view = _read(setting, st, start_robot)
+        tabs = view.tabs
+        stop = _stop(setting, st, view, r, max_rounds)
+        if stop is None:
+            chosen = _choose(setting, st, view, r)
+            if isinstance(chosen, _Block):
+                _run(setting, st, view, chosen, r, execute)
+                continue
+            stop = chosen
+        met = stop == _MET
+        reason = stop or reason
+        break
+    return _finish(setting, st, tabs, met, reason)
+
+
+_MET = "every target met"
+
+
+def _read(s: _Setting, st: _State, start_robot: Robot) -> _View:
+    """Fit all data so far (from the last fit's values) and read the SEs against the targets."""
+    st.res = _fit(start_robot, st.obs, st.res)
+    pres = _with_prior_noise(st.res, s.prior)  # what the plans see: the previous campaign's noise where no data yet
+    se = {p: (st.res.se.get(p, math.inf) if st.res is not None else math.inf) for p in s.targets}
+    values = st.res.values if st.res is not None else {}
+    tabs = target_se(s.targets, {p: values.get(p, _value(s.robot, p)) for p in s.targets})
+    if st.rounds:
+        st.rounds[-1].se = {p: _finite(v) for p, v in se.items()}
+    else:
+        st.initial_se = dict(se)
+    have: set[str] = set(st.obs.procedures()) if st.obs is not None else set()
+    return _View(se, tabs, pres, have, sum(st.acts.values()), [p for p in s.targets if p not in st.refused])
+
+
+def _stop(s: _Setting, st: _State, view: _View, r: int, max_rounds: int) -> str | None:
+    """Why the campaign ends before round `r` plans ("" to end with the default reason), else None."""
+    if st.res is not None and view.live and all(view.se[p] <= view.tabs[p] for p in view.live):
+        return _MET
+    if r > max_rounds:
+        return ""
+    if st.spent_s >= s.budget_seconds or view.n_acts >= s.budget_actions:
+        return "budget spent"
+    if st.fell_back:
+        return st.fell_back
+    return None
+
+
+def _choose(s: _Setting, st: _State, view: _View, r: int) -> _Block | str:
+    """The block round `r` runs, or why the campaign ends (the plan adds nothing, no grid left)."""
+    misfit: list[str] = []
+    if not st.floor_checked and st.res is not None and all(c.procedure in view.have for c in s.floor):
+        # judged once, on the diagnostic floor (one pair per level, made for diagnosis): later rounds
+        # repeat levels, and identical levels whose residuals agree read as structure to the fit
+        st.floor_checked = True
+        misfit = st.res.misses_something()
+    if misfit:
+        return _lab_grid_block(s, st, misfit, r)
+    if s.prior is not None and st.res is None:  # round 1 from the previous campaign's values and noise
+        return _prior_block(s, st, view, r)
+    return _planned_block(s, st, view, r)
+
+
+def _lab_grid_block(s: _Setting, st: _State, misfit: list[str], r: int) -> _Block | str:
+    """The declared model misses something: the rest of the lab's own grid, for diagnose."""
+    grid = fixed_grid_units(s.robot, s.files)
+    rests = 2 * s.space.sweep_rest * len({u.candidate.world for u in grid if u.candidate.procedure == "sweep"})
+    units = rest_of_lab_grid(grid, st.done, st.world, s.budget_seconds - st.spent_s - rests)
+    st.fell_back = (f"the declared model misses something ({'; '.join(misfit)}): a plan from its information "
+                    "would be a fiction, so the rest of the lab's own grid ran, for omnibench diagnose; declare "
+                    "what it finds and plan again")
+    if not units:
+        return st.fell_back
+    s.log("design_misfit", {"round": r, "why": st.fell_back, "misses": misfit})
+    return _Block(units, None, st.fell_back)
+
+
+def _nothing_to_add(s: _Setting, design: Any, r: int) -> str:
+    reason = "the plan adds nothing (targets refused or out of reach within the budget)"
+    s.log("design_stop", {"round": r, "why": reason, "notes": design.notes})
+    return reason
+
+
+def _prior_block(s: _Setting, st: _State, view: _View, r: int) -> _Block | str:
+    """Round 1 planned at the previous campaign's values and noise: the ground pilot, then the
+    whole upside-down part of that plan."""
+    design = _plan_from_prior(s.prior, s.targets, s.space, s.costs, current=s.current, start=st.world,
+                              budget_seconds=s.budget_seconds - st.spent_s,
+                              budget_actions=s.budget_actions - view.n_acts, required=s.floor)
+    st.refused.update(design.refused)
+    if not design.units:
+        return _nothing_to_add(s, design, r)
+    units = ground_pilot(design.units, view.have, s.floor) + [u for u in design.units
+                                                              if u.candidate.world.mode == "upside_down"]
+    return _Block(units, design, "largest drop of the weighted A-criterion per second of cost, at the previous "
+                                 "campaign's noise")
+
+
+def _planned_block(s: _Setting, st: _State, view: _View, r: int) -> _Block | str:
+    """The plan from the fit so far (aimed lower where the fit's SE exceeds the plan's), and its
+    first block: the sweep's pilot first (with the ground pilot where the robot starts), else the
+    current pose's steps for the measured targets, piloted where a procedure has no data yet."""
+    have = view.have
+    required = [c for c in s.floor if c.procedure not in have]
+
+    def replan(res: Any, aims: Mapping[str, tuple[float, bool]]) -> Any:
+        return plan(s.robot, res, aims, s.space, s.costs, current=s.current, start=st.world,
+                    budget_seconds=s.budget_seconds - st.spent_s, budget_actions=s.budget_actions - view.n_acts,
+                    required=required, obs=st.obs, done=st.done)
+
+    design = replan(view.pres, s.targets)
+    design, aims = _calibrated(design, s.targets, view.se, view.tabs, lambda t: replan(view.pres, t))
+    st.refused.update(design.refused)
+    if not design.units:
+        return _nothing_to_add(s, design, r)
+    why = "largest drop of the weighted A-criterion per second of cost"
+    if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
+        # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
+        block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, s.floor)
+        if st.world is None or st.world.mode == "ground":
+            block = ground_pilot(design.units, have, s.floor) + block
+        return _Block(block, design, why)
+    units, deferred = defer_unmeasured(design.units, s.robot, view.pres, aims, st.refused, view.se, s.space, s.costs,
+                                       current=s.current, start=st.world, floor=s.floor, have=have, obs=st.obs,
+                                       budget_seconds=s.budget_seconds - st.spent_s,
+                                       budget_actions=s.budget_actions - view.n_acts, done=st.done)
+    block = pilot(first_block(units), have, s.floor)
+    if s.prior is None and "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
+        block = pilot_over_prior(block, view.pres, st.obs, aims,
+                                 [p for p in view.live if not math.isfinite(view.se[p])],
+                                 replan, lambda b: s.costs.of(_robot_seconds(b), sequence_actions(
+                                     [u.candidate.world for u in b for _ in range(u.reps)],
+                                     sum(u.candidate.measurements * u.reps for u in b), st.world, end=None)),
+                                 s.current)
+    return _Block(block, design, why, deferred)
+
+
+def _robot_seconds(units: list[Unit]) -> float:
+    """The robot time of `units`, s (the cost model's)."""
+    return sum(u.candidate.robot_seconds * u.reps for u in units)
+
+
+def _run(s: _Setting, st: _State, view: _View, block: _Block, r: int,
+         execute: Callable[[list[tuple[str, Path]], int], Any]) -> None:
+    """Write the block's procedure files, log the decision, run them, and account the data, the
+    pairs done, the operator's actions, the robot time and the round."""
     from omnibench.analysis.observations import Observations
 
-    space = space or space_from_files(robot, files, limits)
-    floor = diagnostic_floor(robot, files, space)
-    obs = None
-    res = None
-    world: World | None = None
-    spent_s = 0.0
-    acts = {"flip": 0, "wheels": 0, "payload": 0, "measure": 0}
-    rounds: list[Round] = []
-    refused: dict[str, str] = {}
-    reason = f"stopped after {max_rounds} rounds"
-    met = False
-    initial_se: dict[str, float] = {}
-    done: dict[Any, int] = {}  # pairs of each candidate run so far (the repetition cap counts them)
-    fell_back = ""  # why the rest of the lab's grid ran instead of a plan (the model misses something)
-    floor_checked = False
-    start_robot = prior.robot if prior is not None else robot
-    for r in range(1, max_rounds + 2):
-        res = _fit(start_robot, obs, res)
-        pres = _with_prior_noise(res, prior)  # what the plans see: the previous campaign's noise where no data yet
-        se = {p: (res.se.get(p, math.inf) if res is not None else math.inf) for p in targets}
-        values = res.values if res is not None else {}
-        tabs = target_se(targets, {p: values.get(p, _value(robot, p)) for p in targets})
-        if rounds:
-            rounds[-1].se = {p: _finite(v) for p, v in se.items()}
-        else:
-            initial_se = dict(se)
-        live = [p for p in targets if p not in refused]
-        if res is not None and live and all(se[p] <= tabs[p] for p in live):
-            met, reason = True, "every target met"
-            break
-        if r > max_rounds:
-            break
-        n_acts = sum(acts.values())
-        if spent_s >= budget_seconds or n_acts >= budget_actions:
-            reason = "budget spent"
-            break
-        have = set(obs.procedures()) if obs is not None else set()
-        if fell_back:
-            reason = fell_back
-            break
-        misfit: list[str] = []
-        if not floor_checked and res is not None and all(c.procedure in have for c in floor):
-            # judged once, on the diagnostic floor (one pair per level, made for diagnosis): later rounds
-            # repeat levels, and identical levels whose residuals agree read as structure to the fit
-            floor_checked = True
-            misfit = res.misses_something()
-        if misfit:
-            grid = fixed_grid_units(robot, files)
-            rests = 2 * space.sweep_rest * len({u.candidate.world for u in grid if u.candidate.procedure == "sweep"})
-            block = rest_of_lab_grid(grid, done, world, budget_seconds - spent_s - rests)
-            fell_back = (f"the declared model misses something ({'; '.join(misfit)}): a plan from its information "
-                         "would be a fiction, so the rest of the lab's own grid ran, for omnibench diagnose; declare "
-                         "what it finds and plan again")
-            if not block:
-                reason = fell_back
-                break
-            design, deferred, why = None, [], fell_back
-            log("design_misfit", {"round": r, "why": fell_back, "misses": misfit})
-        elif prior is not None and res is None:  # round 1 from the previous campaign's values and noise
-            design = _plan_from_prior(prior, targets, space, costs, current=current, start=world,
-                                      budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                                      required=floor)
-            refused.update(design.refused)
-            if not design.units:
-                reason = "the plan adds nothing (targets refused or out of reach within the budget)"
-                log("design_stop", {"round": r, "why": reason, "notes": design.notes})
-                break
-            deferred, aims = [], dict(targets)
-            why = "largest drop of the weighted A-criterion per second of cost, at the previous campaign's noise"
-            block = ground_pilot(design.units, have, floor) + [u for u in design.units
-                                                               if u.candidate.world.mode == "upside_down"]
-        else:
-            design = plan(robot, pres, targets, space, costs, current=current, start=world,
-                          budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                          required=[c for c in floor if c.procedure not in have], obs=obs, done=done)
-            design, aims = _calibrated(design, targets, se, tabs, lambda t: plan(
-                robot, pres, t, space, costs, current=current, start=world, budget_seconds=budget_seconds - spent_s,
-                budget_actions=budget_actions - n_acts, required=[c for c in floor if c.procedure not in have], obs=obs,
-                done=done))
-            refused.update(design.refused)
-            if not design.units:
-                reason = "the plan adds nothing (targets refused or out of reach within the budget)"
-                log("design_stop", {"round": r, "why": reason, "notes": design.notes})
-                break
-            deferred = []
-            why = "largest drop of the weighted A-criterion per second of cost"
-            if "sweep" not in have and any(u.candidate.procedure == "sweep" for u in design.units):
-                # the paper's order: the ground runs' fit needs a, b, c (held at their file values otherwise)
-                block = pilot([u for u in design.units if u.candidate.procedure == "sweep"], have, floor)
-                if world is None or world.mode == "ground":
-                    block = ground_pilot(design.units, have, floor) + block
-            else:
-                units, deferred = defer_unmeasured(design.units, robot, pres, aims, refused, se, space, costs,
-                                                   current=current, start=world, floor=floor, have=have, obs=obs,
-                                                   budget_seconds=budget_seconds - spent_s,
-                                                   budget_actions=budget_actions - n_acts, done=done)
-                block = pilot(first_block(units), have, floor)
-                if prior is None and "lateral" not in have and any(u.candidate.procedure == "lateral" for u in block):
-                    block = pilot_over_prior(block, pres, obs, aims, [p for p in live if not math.isfinite(se[p])],
-                                             lambda r_, t: plan(
-                        robot, r_, t, space, costs, current=current, start=world,
-                        budget_seconds=budget_seconds - spent_s, budget_actions=budget_actions - n_acts,
-                        required=[c for c in floor if c.procedure not in have], obs=obs, done=done),
-                        lambda b: costs.of(sum(u.candidate.robot_seconds * u.reps for u in b), sequence_actions(
-                            [u.candidate.world for u in b for _ in range(u.reps)],
-                            sum(u.candidate.measurements * u.reps for u in b), world, end=None)), current)
-        written = write_procedures(block, files, folder / f"round-{r:02d}", robot, seed=r)
-        block_design = _block_prediction(robot, pres, obs, current, block, prior)
-        rec = {"round": r, "why": why
-               + (f"; in this pose only what {', '.join(p for p in targets if p not in deferred and p not in refused)} "
-                  f"need (the later poses measure {', '.join(deferred)})" if deferred else ""),
-               "fit_se": {p: _finite(v) for p, v in se.items()}, "targets": tabs,
-               "plan": design.to_json() if design is not None else None, "runs_now": [u.candidate.label + f" x{u.reps}" for u in block],
-               "expected_se_after_block": {p: _finite(block_design.get(p, math.inf)) for p in targets},
-               "files": [str(p) for _, p in written]}
-        log("design_round", rec)
-        new = execute(written, r)
-        obs = new if obs is None else Observations.concat([obs, new])
-        for u in block:
-            done[u.candidate] = done.get(u.candidate, 0) + u.reps
-        worlds = [u.candidate.world for u in block for _ in range(u.reps)]
-        a = sequence_actions(worlds, sum(u.candidate.measurements * u.reps for u in block), world, end=None)
-        for k, n in a.items():
-            acts[k] += n
-        world = worlds[-1]
-        spent_s += sum(u.candidate.robot_seconds * u.reps for u in block) + sum(
-            2 * space.sweep_rest for _, p in written if "sweep" in p.name)
-        rounds.append(Round(index=r, planned=rec["plan"] or {}, ran=rec["runs_now"], files=rec["files"],
-                            robot_seconds=spent_s, actions=dict(acts),
-                            expected_se={p: _finite(design.se_after.get(p, math.inf) if design is not None
-                                                    else math.inf) for p in targets},
-                            block_expected_se=rec["expected_se_after_block"]))
-    if rounds and world is not None:  # the campaign leaves the robot as it found it
-        for k, n in world_actions(world, REST).items():
-            rounds[-1].actions[k] += n
-    final = AdaptiveResult(rounds=rounds, targets=tabs, met=met, stop_reason=reason, fit=res, refused=refused,
-                           obs=obs, initial_se=initial_se)
-    log("design_end", {"met": met, "why": reason, "robot_seconds": final.robot_seconds,
-                       "operator_actions": final.operator_actions, "refused": refused})
+    units, design, targets = block.units, block.design, s.targets
+    written = write_procedures(units, s.files, s.folder / f"round-{r:02d}", s.robot, seed=r)
+    block_design = _block_prediction(s.robot, view.pres, st.obs, s.current, units, s.prior)
+    rec: dict[str, Any] = {
+        "round": r, "why": block.why
+        + (f"; in this pose only what {', '.join(p for p in targets if p not in block.deferred and p not in st.refused)} "
+           f"need (the later poses measure {', '.join(block.deferred)})" if block.deferred else ""),
+        "fit_se": {p: _finite(v) for p, v in view.se.items()}, "targets": view.tabs,
+        "plan": design.to_json() if design is not None else None,
+        "runs_now": [u.candidate.label + f" x{u.reps}" for u in units],
+        "expected_se_after_block": {p: _finite(block_design.get(p, math.inf)) for p in targets},
+        "files": [str(p) for _, p in written]}
+    s.log("design_round", rec)
+    new = execute(written, r)
+    st.obs = new if st.obs is None else Observations.concat([st.obs, new])
+    for u in units:
+        st.done[u.candidate] = st.done.get(u.candidate, 0) + u.reps
+    worlds = [u.candidate.world for u in units for _ in range(u.reps)]
+    a = sequence_actions(worlds, sum(u.candidate.measurements * u.reps for u in units), st.world, end=None)
+    for k, n in a.items():
+        st.acts[k] += n
+    st.world = worlds[-1]
+    st.spent_s += _robot_seconds(units) + sum(2 * s.space.sweep_rest for _, p in written if "sweep" in p.name)
+    st.rounds.append(Round(index=r, planned=rec["plan"] or {}, ran=rec["runs_now"], files=rec["files"],
+                           robot_seconds=st.spent_s, actions=dict(st.acts),
+                           expected_se={p: _finite(design.se_after.get(p, math.inf) if design is not None
+                                                   else math.inf) for p in targets},
+                           block_expected_se=rec["expected_se_after_block"]))
+
+
+def _finish(s: _Setting, st: _State, tabs: dict[str, float], met: bool, reason: str) -> AdaptiveResult:
+    """The result (the robot put back at rest: the last round counts those actions) and its log line."""
+    if st.rounds and st.world is not None:  # the campaign leaves the robot as it found it
+        for k, n in world_actions(st.world, REST).items():
+            st.rounds[-1].actions[k] += n
+    final = AdaptiveResult(rounds=st.rounds, targets=tabs, met=met, stop_reason=reason, fit=st.res,
+                           refused=st.refused, obs=st.obs, initial_se=st.initial_se)
+    s.log("design_end", {"met": met, "why": reason, "robot_seconds": final.robot_seconds,
+                         "operator_actions": final.operator_actions, "refused": st.refused})
     return final
 
 
@@ -493,7 +612,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     """`omnibench campaign --adaptive`: the adaptive loop on `port` through the runner, then the
     energy trajectories, the analysis stages and the report (with the design's rounds).
 
-    analyse: as for `run_campaign` (the command line passes omnibench.cli.stages.run_analysis).
+    analyse: as for `run_campaign` (the command line passes omnibench.campaign.stages.run_analysis).
     prior_runs: run folders of the robot's previous campaign: their fit's values and noise plan
     round 1 (their data are not counted in this campaign's SEs)."""
     from omnibench import __version__
@@ -519,7 +638,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
 
         prior = fit(robot, Observations.from_runs(tuple(checked_runs(prior_runs)), robot))
     runs_dir = out / "runs"
-    if runs_dir.is_dir() and any(runs_dir.glob("*/run.json")):
+    if run_dirs(runs_dir):
         raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()

@@ -107,7 +107,7 @@ class Answer:
 
 
 def campaign_answer(stages: dict[str, Any]) -> Answer:
-    """The Answer from the analysis stages' records (see omnibench.cli.stages.run_analysis)."""
+    """The Answer from the analysis stages' records (see omnibench.campaign.stages.run_analysis)."""
     fit = ((stages.get("fit") or {}).get("result") or {}) if isinstance(stages.get("fit"), dict) else {}
     diag_stage = stages.get("diagnose") or {}
     diag = diag_stage.get("result") or {} if diag_stage.get("status") == "ok" else {}

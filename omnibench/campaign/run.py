@@ -1,9 +1,8 @@
 """The campaign: every procedure in turn, then fit, validate-energy and diagnose, one report.
 
-The analysis stages are run by the caller's `analyse` function (the command line runs the
-installed commands `omnibench fit`, `validate-energy`, `diagnose`; see omnibench.cli.stages), so
-this module never imports the command line; the report says which stages ran, which were
-skipped and why.
+The analysis stages are run by the caller's `analyse` function (the command line passes
+omnibench.campaign.stages.run_analysis, which calls what `omnibench fit`, `validate-energy` and
+`diagnose` do as functions); the report says which stages ran, which were skipped and why.
 """
 
 from __future__ import annotations
@@ -33,13 +32,13 @@ Analyse = Callable[..., dict[str, Any]]
 
 
 def procedure_files(folder: Path | None) -> dict[str, Path]:
-    """The four procedure files: <folder>/<procedure>.toml, else the shipped ones."""
+    """Every registered procedure's file, in registry order: <folder>/<procedure>.toml, else the shipped one."""
     out = {}
     for p in PROCEDURES:
         if folder is not None:
             f = Path(folder) / f"{p}.toml"
             if not f.is_file():
-                raise UserError(f"{folder}: no {p}.toml (the campaign needs all four procedure files)")
+                raise UserError(f"{folder}: no {p}.toml (the campaign needs every procedure's file)")
             out[p] = f
         else:
             out[p] = default_procedure_path(p)
@@ -50,18 +49,19 @@ def _runs_of(runs_dir: Path) -> dict[str, list[tuple[Path, str]]]:
     """Run directories in runs_dir by procedure, oldest first, each with its status."""
     from omnibench.runs.check import run_problem
     from omnibench.runs.record import read_info
+    from omnibench.runs.store import run_dirs
 
     found: dict[str, list[tuple[Path, str]]] = {}
-    for run_json in sorted(runs_dir.glob("*/run.json")) if runs_dir.is_dir() else []:
+    for run_dir in run_dirs(runs_dir):
         try:
-            info = read_info(run_json.parent)
+            info = read_info(run_dir)
         except UserError as exc:
             raise UserError(f"{exc}; move that run out of {runs_dir}") from None
-        why = run_problem(run_json.parent) if info.complete else None  # kept as is: the analysis must accept it
+        why = run_problem(run_dir) if info.complete else None  # kept as is: the analysis must accept it
         if why:
-            where = "" if why.startswith(str(run_json.parent)) else f"{run_json.parent}: "
+            where = "" if why.startswith(str(run_dir)) else f"{run_dir}: "
             raise UserError(f"{where}{why}; move that run out of {runs_dir}")
-        found.setdefault(info.procedure, []).append((run_json.parent, info.status))
+        found.setdefault(info.procedure, []).append((run_dir, info.status))
     return found
 
 
@@ -71,7 +71,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
                  resume: bool = False, without_current: bool = False,
                  operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
-                 verbosity: int = 0, stage_options: dict[str, tuple[str, ...]] | None = None) -> dict[str, Any]:
+                 verbosity: int = 0, stage_options: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -79,8 +79,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     hold runs yet (the analysis reads every run there, so two campaigns must not mix).
 
     analyse(runs_dir, out, robot_file, echo, stages) runs the analysis stages and returns their
-    results by name (the command line passes omnibench.cli.stages.run_analysis); None skips them.
-    stage_options: more options for a stage's command, by stage name (e.g. diagnose's --candidates).
+    results by name (the command line passes omnibench.campaign.stages.run_analysis); None skips them.
+    stage_options: more options for a stage, by stage name (e.g. {"diagnose": {"candidates": [...]}}).
 
     Ctrl-C (KeyboardInterrupt) at any point: the motors are stopped (the procedure's run is marked
     aborted), report.md and campaign.json are written with what finished and where it stopped
@@ -469,7 +469,7 @@ def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
     from omnibench.bench.session import summary_lines
     from omnibench.runs import read_run
 
-    ports = sorted({str(read_run(r["run"]).metadata.get("port")) for r in results["procedures"].values()
+    ports = sorted({str(read_run(r["run"]).info.port) for r in results["procedures"].values()
                     if r.get("run")}) or [results["port"]]
     lines = ["# omnibench campaign report", ""]
     if results.get("status") == "interrupted":
@@ -482,7 +482,7 @@ def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
               f"- host time: {results.get('host_seconds', math.nan):.0f} s"]
     first = next(iter(results["procedures"].values()), None)
     if first and first.get("run"):
-        board = read_run(first["run"]).metadata.get("board") or {}
+        board = read_run(first["run"]).info.board or {}
         if board:
             lines += [f"- board: id {board.get('board_id')}, firmware {board.get('firmware_version')}, "
                       f"protocol {board.get('protocol_version')}, capabilities {', '.join(board.get('capabilities', []))}"]
@@ -491,8 +491,8 @@ def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
     for p, res in results["procedures"].items():
         run = read_run(res["run"])
         lines += [f"### {LABELS[p]}", "", f"- run: `{res['run']}` — {run.status}, {len(run.steps)} steps, "
-                  f"{len(run.samples)} samples", f"- port: `{run.metadata.get('port')}`",
-                  f"- procedure file: `{run.metadata.get('procedure_file')}`"]
+                  f"{len(run.samples)} samples", f"- port: `{run.info.port}`",
+                  f"- procedure file: `{run.info.procedure_file}`"]
         for line in summary_lines(p, {k: v for k, v in res.items()}, len(run.steps)):
             lines.append(f"- {line}")
         plot = results.get("plots", {}).get(COMMAND_OF[p])

@@ -1,6 +1,6 @@
 """The `omnibench` command: a click group whose subcommands live one per module.
 
-Each module in COMMANDS defines `command` (a click.Command or Group). Modules are
+Each module in `commands()` defines `command` (a click.Command or Group). Modules are
 imported only when their command runs, so `omnibench --help` stays fast.
 """
 
@@ -15,18 +15,18 @@ import click
 
 from omnibench import __version__
 from omnibench.errors import Terminated, UserError
+from omnibench.procedures.registry import REGISTRY
 
-# command name -> (module, one-line help shown in `omnibench --help`)
-COMMANDS: dict[str, tuple[str, str]] = {
+#: command name -> (module, one-line help shown in `omnibench --help`); the procedures' commands
+#: (sweep, forward, ...) come from omnibench/procedures/registry.py, between these two tables.
+_BEFORE: dict[str, tuple[str, str]] = {
     "simulate": ("omnibench.cli.simulate", "Simulate the robot from a command file (no board)."),
     "ports": ("omnibench.cli.ports", "List serial ports."),
     "board": ("omnibench.cli.board", "Talk to a motor board: info, monitor."),
     "sim": ("omnibench.cli.sim", "Run the simulated Omnibot board (pseudo-terminal)."),
     "commission": ("omnibench.cli.commission", "Jog each wheel, check wiring and sensors: write wiring.toml."),
-    "sweep": ("omnibench.cli.procedures", "III.i  upside-down voltage sweep."),
-    "forward": ("omnibench.cli.procedures", "III.ii forward/backward runs (rolling resistance)."),
-    "lateral": ("omnibench.cli.procedures", "III.iii lateral runs with payloads (roller friction)."),
-    "energy": ("omnibench.cli.procedures", "IV     energy trajectories with the battery current logged."),
+}
+_AFTER: dict[str, tuple[str, str]] = {
     "campaign": ("omnibench.cli.campaign", "Run every procedure, fit, validate and diagnose: one report."),
     "import": ("omnibench.cli.importer", "Convert other data (the 2019 TFM logs) into runs."),
     "fit": ("omnibench.cli.analysis", "Fit every coefficient with uncertainties."),
@@ -37,26 +37,37 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def commands() -> dict[str, tuple[str, str]]:
+    """Every command: name -> (module, its line in `omnibench --help`), in the order of the help.
+
+    The procedures' commands are read from the registry when asked (a procedure registered after
+    this module was imported is listed too); the registry imports nothing heavy."""
+    procedures = {p.command: ("omnibench.cli.procedures", p.summary) for p in REGISTRY}
+    return {**_BEFORE, **procedures, **_AFTER}
+
+
 def _available() -> list[str]:
     """Commands whose module exists (the rest are still being built)."""
-    return [n for n, (mod, _) in COMMANDS.items() if importlib.util.find_spec(mod) is not None]
+    return [n for n, (mod, _) in commands().items() if importlib.util.find_spec(mod) is not None]
 
 
 class LazyGroup(click.Group):
-    """Resolves subcommands from COMMANDS on demand."""
+    """Resolves subcommands from `commands()` on demand."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return _available()
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        if name not in COMMANDS or name not in _available():
+        table = commands()
+        if name not in table or name not in _available():
             return None
-        module = importlib.import_module(COMMANDS[name][0])
+        module = importlib.import_module(table[name][0])
         # A module serving several commands (sweep/forward/...) exposes a `commands` dict.
         return module.commands[name] if hasattr(module, "commands") else module.command
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        rows = [(n, COMMANDS[n][1]) for n in self.list_commands(ctx)]
+        table = commands()
+        rows = [(n, table[n][1]) for n in self.list_commands(ctx)]
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)

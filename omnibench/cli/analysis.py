@@ -10,34 +10,15 @@ from typing import Any
 
 import click
 
-from omnibench.cli.params import NonEmptyPath, check_out_folder
+from omnibench.cli.params import NonEmptyPath
 from omnibench.errors import UserError
-from omnibench.runs.check import check_output, checked_runs
-
-
-def _robot(path: Path | None):
-    from omnibench.analysis.model_file import load_model
-    from omnibench.model import default_robot
-
-    if path is None:
-        return default_robot(), {}
-    return load_model(path)
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if hasattr(obj, "item"):
-        return _jsonable(obj.item())
-    return obj
+from omnibench.runs.check import check_out_folder, checked_runs
 
 
 def _echo_json(obj: Any) -> None:
-    click.echo(json.dumps(_jsonable(obj), indent=2, allow_nan=False))
+    from omnibench.campaign.analysis_commands import jsonable
+
+    click.echo(json.dumps(jsonable(obj), indent=2, allow_nan=False))
 
 
 def _free(text: str | None) -> list[str] | None:
@@ -72,52 +53,16 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
                 skip_bad: bool = False) -> None:
     """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
     correlations and an identifiability verdict per parameter; write the model file."""
-    from omnibench.analysis.fitting import fit, fit_per_wheel
-    from omnibench.analysis.model_file import write_model
-    from omnibench.analysis.observations import PROCEDURES, Observations
+    from omnibench.campaign.analysis_commands import fit_runs
 
-    robot, _ = _robot(robot_file)
-    good = checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True))
-    check_output(out, good)
-    _check_plots(plots)
-    obs = Observations.from_runs(good, robot)
-    procs = None
-    if procedures is not None:
-        procs = [p.strip() for p in procedures.split(",") if p.strip()]
-        bad = [p for p in procs if p not in PROCEDURES]
-        if bad or not procs:
-            raise UserError(f"--procedures: {', '.join(bad) or 'empty'}; choose from {', '.join(PROCEDURES)}")
-        if not any(len(obs.table(p)) for p in procs):
-            raise UserError(f"none of the runs holds {', '.join(procs)} observations ({obs.summary()})")
-    elif not any(len(obs.table(p)) for p in ("sweep", "forward", "lateral")):
-        raise UserError("none of the runs is a sweep, forward or lateral run: nothing to fit "
-                        f"({obs.summary()})")
-    if not as_json:
-        click.echo(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
-        click.echo("Fitting through the simulator (weighted least squares)...")
-    from omnibench.cli.progress import working
-
-    with working("fitting"):
-        result = fit(robot, obs, _free(free), procedures=procs)
-    wheels = {}
-    if per_wheel and "sweep" in result.procedures and obs.sweep["wheel"].nunique() > 1:
-        wheels = fit_per_wheel(result.robot, obs, [p for p in ("a", "b", "c")])
-    paths = [obs.runs[r]["path"] or r for r in result.runs_used]
-    model_path = write_model(out, result, [str(p) for p in paths], per_wheel=wheels or None)
-    figures = []
-    if plots is not None:
-        from omnibench.analysis import plots as pl
-
-        if "sweep" in result.procedures:
-            figures.append(str(pl.plot_sweep_fit(result.robot, obs, result.residuals, plots)))
-        figures.append(str(pl.plot_residuals(result.residuals, plots)))
+    procs = None if procedures is None else [p.strip() for p in procedures.split(",") if p.strip()]
+    done = fit_runs(runs, out=out, robot_file=robot_file, free=_free(free), procedures=procs, per_wheel=per_wheel,
+                    plots=plots, skip_bad=skip_bad, progress=lambda line: click.echo(line, err=True),
+                    say=(lambda line: None) if as_json else click.echo)
     if as_json:
-        data = result.to_json()
-        data["per_wheel"] = {str(j): r.to_json()["parameters"] for j, r in wheels.items()}
-        data["model_file"] = str(model_path)
-        data["plots"] = figures
-        _echo_json(data)
+        click.echo(done.json_text())
         return
+    result, wheels, model_path, figures = done.result, done.wheels, done.model_path, done.figures
     click.echo(result.table())
     if len(result.corr) > 1:
         click.echo("correlation matrix:")
@@ -153,11 +98,6 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
         click.echo(f"figure: {f}")
 
 
-def _check_plots(plots: Path | None) -> None:
-    if plots is not None:
-        check_out_folder(plots, "--plots")
-
-
 @click.command("validate-energy")
 @click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
 @click.option("--model", "model", type=NonEmptyPath(path_type=Path), required=True,
@@ -170,25 +110,14 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
                      skip_bad: bool = False) -> None:
     """Replay each energy run's duties through the model and compare predicted with measured
     battery energy (paper IV)."""
-    from omnibench.analysis.observations import Observations
-    from omnibench.analysis.validate import validate_energy
+    from omnibench.campaign.analysis_commands import validate_runs
 
-    _check_plots(plots)
-    robot, _ = _robot(model)
-    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
-                                 robot)
-    val = validate_energy(robot, obs)
-    fig = None
-    if plots is not None:
-        from omnibench.analysis.plots import plot_energy
-
-        fig = plot_energy(val, plots)
+    done = validate_runs(runs, model=model, plots=plots, skip_bad=skip_bad,
+                         progress=lambda line: click.echo(line, err=True))
     if as_json:
-        data = val.to_json()
-        data["model"] = str(model)
-        data["plots"] = [str(fig)] if fig else []
-        _echo_json(data)
+        click.echo(done.json_text())
         return
+    val, fig = done.validation, done.figure
     click.echo(f"{'run':<40} {'step':>4} {'trajectory':<14} {'measured J':>11} {'model J':>11} {'error %':>8}")
     for _, r in val.table.iterrows():
         click.echo(f"{r['run']!s:<40} {int(r['step']):>4} {r['trajectory']!s:<14} {r['measured_J']:>11.2f} "
@@ -216,9 +145,11 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     NRMSE of wheel speeds, positions and currents where measured."""
     from omnibench.analysis.observations import Observations
     from omnibench.analysis.predict import predict_runs
+    from omnibench.campaign.analysis_commands import model_robot
 
-    _check_plots(plots)
-    robot, _ = _robot(model)
+    if plots is not None:
+        check_out_folder(plots, "--plots")
+    robot, _ = model_robot(model)
     obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
                                  robot)
     loro = _baseline(robot, obs, model) if baseline else None

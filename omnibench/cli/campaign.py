@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -54,8 +56,8 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
     On the simulated robot:  omnibench campaign --port sim:// --out campaign
     """
     from omnibench.campaign.run import parse_stages, run_campaign
+    from omnibench.campaign.stages import run_analysis
     from omnibench.cli import verbosity
-    from omnibench.cli.stages import run_analysis
 
     level = verbosity()
 
@@ -63,18 +65,19 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         if level >= 0:
             click.echo(line, err=as_json)
 
-    from omnibench.cli.params import check_out_folder
     from omnibench.cli.plan import check_limits, parse_costs
+    from omnibench.runs.check import check_out_folder
 
     check_out_folder(out)
     check_limits(floor_length, budget_minutes, budget_actions)
     costs = parse_costs(cost, robot_second)
     stages = parse_stages(analysis)
-    stage_options: dict[str, tuple[str, ...]] = {}
+    stage_options: dict[str, dict[str, Any]] = {}
     if candidates is not None:
         from omnibench.cli.diagnose import parse_candidates
 
-        stage_options["diagnose"] = ("--candidates", ",".join(parse_candidates(candidates) or []))
+        stage_options["diagnose"] = {"candidates": parse_candidates(candidates) or []}
+    analyse = functools.partial(run_analysis, live=level >= 0)
     if adaptive:
         from omnibench.analysis.design.space import Limits
         from omnibench.campaign.adaptive import run_adaptive_campaign
@@ -87,7 +90,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
                                     procedures_dir=procedures_dir, costs=costs,
                                     limits=Limits(floor_length=floor_length), current=not no_current,
                                     budget_minutes=budget_minutes, budget_actions=budget_actions, echo=echo,
-                                    stages=stages, analyse=run_analysis, prior_runs=prior_runs)
+                                    stages=stages, analyse=analyse, prior_runs=prior_runs)
     elif prior_runs:
         raise UserError("--prior-runs needs --adaptive")
     elif target_se:
@@ -96,7 +99,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         res = run_campaign(port or "", out, robot_file=robot_file, procedures_dir=procedures_dir, echo=echo,
                            progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
                            stages=stages, resume=resume,
-                           without_current=without_current, operator=who, analyse=run_analysis, plot=plot,
+                           without_current=without_current, operator=who, analyse=analyse, plot=plot,
                            verbosity=level, stage_options=stage_options)
     if as_json:
         from omnibench.runs.store import json_ready

@@ -3,7 +3,6 @@ the held-out error before and after (docs/diagnose.md)."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -66,66 +65,18 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         raise UserError(f"--alpha {alpha}: give a significance level between 0 and 0.5, e.g. 0.001")
     if max_effects < 0:
         raise UserError(f"--max-effects {max_effects}: must be 0 or more")
-    names = parse_candidates(candidates)
-    procs = _procedures(procedures)
-    from omnibench.analysis.diagnosis import diagnose
-    from omnibench.analysis.diagnosis.report import write_model, write_plots
-    from omnibench.analysis.observations import Observations
-    from omnibench.cli.params import check_out_folder
-    from omnibench.runs.check import check_output, checked_runs
+    from omnibench.campaign.analysis_commands import diagnose_runs
 
-    runs = tuple(checked_runs(runs))
-    if out is not None:
-        check_output(out, runs)
-    if plots is not None:
-        check_out_folder(plots, "--plots")
-    from omnibench.analysis.model_file import load_model
-    from omnibench.model import load_robot
-
-    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
-    fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
-    obs = Observations.from_runs(runs, robot=robot)
-    if not obs.procedures():
-        raise UserError("the runs hold no measurements diagnose can use (sweep, forward, lateral, energy, step_response)")
-
-    def progress(msg: str) -> None:
-        click.echo(f"diagnose: {msg}", err=True)
-
-    diag = diagnose(robot, obs, candidates=names, procedures=procs, alpha=alpha, max_effects=max_effects,
-                    seed=seed, progress=progress, fit_info=fit_info)
-    held = None
-    if loro:
-        from omnibench.analysis.diagnosis.loro import heldout_runs
-
-        if len(obs.run_ids) < 2:
-            raise UserError("--loro needs at least two runs (each is predicted from the others)")
-        held = heldout_runs(diag, obs, progress=progress)
-    written: dict[str, object] = {}
-    if out is not None:
-        if held is not None and held.tradeoffs:
-            from omnibench.analysis.diagnosis.loro import trimmed
-
-            written["model"] = str(write_model(trimmed(diag, held, obs), out))
-        else:
-            written["model"] = str(write_model(diag, out))
-    if plots is not None:
-        written["plots"] = [str(p) for p in write_plots(diag, plots)]
+    done = diagnose_runs(runs, model=model, out=out, plots=plots, candidates=parse_candidates(candidates),
+                         procedures=_procedures(procedures), alpha=alpha, max_effects=max_effects, seed=seed,
+                         loro=loro, progress=lambda line: click.echo(line, err=True))
     if as_json:
-        click.echo(json.dumps({**diag.to_json(), "written": written,
-                               "leave_one_run_out": held.to_json() if held else None}, indent=2, default=_jsonable))
+        click.echo(done.json_text())
         return
-    click.echo(diag.text())
-    if held is not None:
-        click.echo(held.text())
-    if "model" in written:
-        click.echo(f"extended model written to {written['model']}")
-    if "plots" in written:
-        click.echo(f"plots: {', '.join(written['plots'])}")  # type: ignore[arg-type]
-
-
-def _jsonable(x: object) -> object:
-    try:
-        v = float(x)  # type: ignore[arg-type]  # numpy scalars
-    except (TypeError, ValueError):
-        return str(x)
-    return v if math.isfinite(v) else None
+    click.echo(done.diagnosis.text())
+    if done.held is not None:
+        click.echo(done.held.text())
+    if "model" in done.written:
+        click.echo(f"extended model written to {done.written['model']}")
+    if "plots" in done.written:
+        click.echo(f"plots: {', '.join(done.written['plots'])}")

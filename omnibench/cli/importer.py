@@ -10,6 +10,8 @@ import click
 
 from omnibench.cli.params import NonEmptyPath
 from omnibench.errors import UserError
+from omnibench.runs.record import RunInfo, read_info
+from omnibench.runs.store import run_dirs
 
 
 @click.group("import")
@@ -41,8 +43,8 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
     results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
     from omnibench.cli import verbosity
-    from omnibench.cli.params import check_out_folder
     from omnibench.runs import read_run
+    from omnibench.runs.check import check_out_folder
     from omnibench.runs.tfm import file_digest, import_tfm, parse_signs
 
     check_out_folder(out)
@@ -56,8 +58,8 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
         except OSError as exc:
             raise UserError(f"{f}: cannot read ({exc.strerror or type(exc).__name__})") from None
         if digest in earlier:
-            path, meta = earlier[digest]
-            _check_same_options(f, path, meta, sign_map, sketch)
+            path, info = earlier[digest]
+            _check_same_options(f, path, info, sign_map, sketch)
             run = read_run(path)
             results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": True,
                             "steps": int(len(run.steps)), "samples": int(len(run.samples))})
@@ -66,19 +68,19 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
             continue
         path = import_tfm(f, out, signs=sign_map, sketch=sketch, direction=direction)
         run = read_run(path)
-        earlier[digest] = (path, run.metadata)
+        info = run.info
+        earlier[digest] = (path, info)
         results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": False,
                         "steps": int(len(run.steps)), "samples": int(len(run.samples)),
-                        "sign_map": run.metadata["sign_map"],
-                        "mode": run.metadata.get("mode"), "firmware_timing": run.metadata.get("firmware_timing"),
-                        **({"direction": run.metadata["direction"]} if run.metadata.get("direction") else {})})
+                        "sign_map": info.sign_map, "mode": info.mode, "firmware_timing": info.firmware_timing,
+                        **({"direction": info.direction} if info.direction else {})})
         if as_json:
             continue
         if quiet:  # the one line a script needs
             click.echo(str(path))
             continue
-        ft = run.metadata["firmware_timing"]
-        where = run.metadata["mode"] + (f", driving {run.metadata['direction']}" if run.metadata.get("direction") else "")
+        ft = info.firmware_timing or {}
+        where = f"{info.mode}" + (f", driving {info.direction}" if info.direction else "")
         if ft.get("sketch") == "unknown":
             firmware = (f"firmware unknown (no sketch documented): profiled over {', '.join(ft.get('profiled_over', []))}, "
                         f"replayed by default with {ft.get('default_sketch')}'s timing")
@@ -86,32 +88,31 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
             firmware = (f"firmware {ft.get('sketch')}: commands sent in wheel order {ft['command_order']}, "
                         f"{1000 * ft.get('packet_s', 0):.2f} ms apart, {ft.get('commands', '')}")
         click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
-                   f"{len(run.samples)} samples -> {path} (sign map {run.metadata['sign_map']}, {where}; {firmware})")
+                   f"{len(run.samples)} samples -> {path} (sign map {info.sign_map}, {where}; {firmware})")
     if as_json:
         click.echo(json.dumps(results, indent=2))
 
 
-def _imported(out: Path) -> dict[str, tuple[Path, dict[str, Any]]]:
+def _imported(out: Path) -> dict[str, tuple[Path, RunInfo]]:
     """Runs already imported into `out`, by the SHA-256 of their source file."""
-    found: dict[str, tuple[Path, dict[str, Any]]] = {}
-    for run_json in sorted(out.glob("*/run.json")) if out.is_dir() else []:
+    found: dict[str, tuple[Path, RunInfo]] = {}
+    for run_dir in run_dirs(out):
         try:
-            meta = json.loads(run_json.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            info = read_info(run_dir)
+        except UserError:
             continue  # not ours to judge here; the analysis commands name unreadable runs
-        digest = meta.get("source_sha256") if isinstance(meta, dict) else None
-        if isinstance(digest, str):
-            found.setdefault(digest, (run_json.parent, meta))
+        if info.source_sha256 is not None:
+            found.setdefault(info.source_sha256, (run_dir, info))
     return found
 
 
-def _check_same_options(f: Path, path: Path, meta: dict[str, Any], sign_map: Any, sketch: str | None) -> None:
+def _check_same_options(f: Path, path: Path, info: RunInfo, sign_map: Any, sketch: str | None) -> None:
     """A second import of the same file with other --signs or --sketch is refused: the folder
     would hold the same log twice, and every later analysis would count it twice."""
-    if sign_map is not None and list(sign_map) != list(meta.get("sign_map") or []):
-        raise UserError(f"{f}: already imported as {path} with sign map {meta.get('sign_map')}; remove that run "
+    if sign_map is not None and list(sign_map) != list(info.sign_map or []):
+        raise UserError(f"{f}: already imported as {path} with sign map {info.sign_map}; remove that run "
                         "to import it again with other --signs, or give another --out")
-    timing = meta.get("firmware_timing") or {}
+    timing = info.firmware_timing or {}
     if sketch is not None and sketch != _sketch_key(timing):
         raise UserError(f"{f}: already imported as {path} with the {timing.get('sketch')} timing; remove that run "
                         "to import it again with another --sketch, or give another --out")

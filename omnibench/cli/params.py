@@ -7,12 +7,9 @@ value any omnibench option means, so these types refuse them before a command st
 from __future__ import annotations
 
 import math
-from pathlib import Path as _Path
 from typing import Any
 
 import click
-
-from omnibench.errors import UserError
 
 
 class FiniteFloat(click.types.FloatParamType):
@@ -37,22 +34,3 @@ class NonEmptyPath(click.Path):
 
 
 FINITE = FiniteFloat()
-
-
-def in_run(path: _Path) -> _Path | None:
-    """The run directory that `path` is, or lies in (None: not in a run)."""
-    p = _Path(path).resolve()
-    for d in (p, *p.parents):
-        if (d / "run.json").is_file():
-            return d
-    return None
-
-
-def check_out_folder(path: _Path, option: str = "--out") -> None:
-    """Refuse an output folder that is an existing file or lies in a run directory."""
-    if _Path(path).exists() and not _Path(path).is_dir():
-        raise UserError(f"{option} {path}: is a file, not a folder")
-    run = in_run(path)
-    if run is not None:
-        raise UserError(f"{option} {path}: is inside the run directory {run}; write elsewhere (a run's files "
-                        "are never overwritten)")

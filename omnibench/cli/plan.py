@@ -84,16 +84,16 @@ def command(runs: tuple[Path, ...], model_file: Path | None, target_se: str | No
 
     omnibench plan runs/ --target-se a=2%,b=1%,c=5%,C_r=5%
     """
-    from omnibench.analysis.design.files import COMMAND_OF, diagnostic_floor, space_from_files, write_procedures
+    from omnibench.analysis.design.files import diagnostic_floor, space_from_files, write_procedures
     from omnibench.analysis.design.planner import describe_actions, parse_targets, plan
     from omnibench.analysis.design.space import Limits
     from omnibench.analysis.fitting import fit
     from omnibench.analysis.model_file import load_model
     from omnibench.analysis.observations import Observations
     from omnibench.campaign.run import procedure_files
-    from omnibench.cli.params import check_out_folder
     from omnibench.model import default_robot
-    from omnibench.runs.check import checked_runs
+    from omnibench.procedures import COMMAND_OF
+    from omnibench.runs.check import check_out_folder, checked_runs
 
     check_out_folder(out)
     runs = tuple(checked_runs(runs)) if runs else ()

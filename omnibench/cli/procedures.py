@@ -15,21 +15,21 @@ from typing import Any
 import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
-from omnibench.procedures import REGISTRY
+from omnibench.procedures.registry import REGISTRY, Procedure
 
-#: command -> procedure, and the command's help, from the procedures' registry
-PROCEDURE_OF = {p.command: p.name for p in REGISTRY}
-HELP = {p.command: p.help for p in REGISTRY}
+#: command -> its procedure, from the procedures' registry
+PROCEDURE_OF: dict[str, Procedure] = {p.command: p for p in REGISTRY}
 
 
 def _make(name: str) -> click.Command:
-    procedure = PROCEDURE_OF[name]
+    entry = PROCEDURE_OF[name]
+    procedure = entry.name
 
-    @click.command(name, help=HELP[name] + f"\n\nDefault procedure file: procedures/{procedure}.toml "
+    @click.command(name, help=entry.help + f"\n\nDefault procedure file: procedures/{entry.default_file} "
                                            "(copy it and edit). Use --port sim:// for the simulated robot.")
     @click.option("--port", metavar="URL", help="Serial device (/dev/ttyACM0), or sim://... for the simulated robot.")
     @click.option("--procedure", "procedure_file", type=NonEmptyPath(path_type=Path), metavar="FILE",
-                  help=f"Procedure file (TOML). Default: the shipped {procedure}.toml.")
+                  help=f"Procedure file (TOML). Default: the shipped {entry.default_file}.")
     @click.option("--robot", "robot_file", type=NonEmptyPath(path_type=Path), metavar="FILE",
                   help="Robot file (TOML). Default: the real Omnibot's numbers.")
     @click.option("--out", type=NonEmptyPath(path_type=Path), default=Path("runs"), show_default=True,

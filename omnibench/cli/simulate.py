@@ -8,6 +8,7 @@ import click
 
 from omnibench.cli.params import FINITE, NonEmptyPath
 from omnibench.errors import UserError
+from omnibench.runs.store import is_run_dir
 
 OUTPUT_COLUMNS = (
     ["t", "x", "y", "psi", "v1", "v2", "psi_dot"]
@@ -45,7 +46,7 @@ def command(robot_path, commands_path, out_path, upside_down, payload, duration,
     if duration is not None and not 0 < duration <= 86400:
         raise UserError(f"--duration must be in (0, 86400] s, got {duration:g}")
     out_dir = Path(out_path).resolve().parent
-    if (out_dir / "run.json").is_file():
+    if is_run_dir(out_dir):
         raise UserError(f"--out {out_path}: is inside the run directory {out_dir}; write elsewhere")
     if not (0 < dt <= 0.01):
         raise UserError(f"--dt must be in (0, 0.01] s, got {dt}")

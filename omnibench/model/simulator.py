@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numba
@@ -524,8 +524,3 @@ class Simulator:
             I_batt=row["I_batt"],
             E_batt=row["E_batt"],
         )
-
-
-def robots_with(robot: Robot, rows: Sequence[Mapping[str, float]]) -> list[Robot]:
-    """Copies of `robot` with fields changed per row (for batch parameter studies)."""
-    return [robot.replace(**row) for row in rows]

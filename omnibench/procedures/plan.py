@@ -27,6 +27,7 @@ import numpy as np
 from omnibench.errors import UserError
 from omnibench.files import read_text
 from omnibench.model.units import to_si
+from omnibench.procedures.registry import BY_NAME, PROCEDURES
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
@@ -384,3 +385,21 @@ def check_limits(plan: Plan, robot: Robot, pf: ProcedureFile | None = None) -> N
             raise UserError(f"{where}: step {s.index} ({s.label}) could take the robot {d:.3g} m from its start, "
                             f"more than the lab's space ([space] max_distance {limit:g} m): shorten the run or "
                             "lower its speed")
+
+
+def load_plan(path: str | Path, robot: Robot, expect: str | None = None) -> Plan:
+    """Read, validate and expand a procedure file for `robot`; checks the robot's limits.
+
+    `expect`: the procedure the command runs (a sweep file given to `omnibench forward` is an
+    error naming the file).
+    """
+    pf = read_procedure_file(path)
+    name = pf.data.get("procedure")
+    if name not in PROCEDURES:
+        pf.fail(None, "procedure", f"expected one of {', '.join(PROCEDURES)}, got {name!r}")
+    if expect is not None and name != expect:
+        pf.fail(None, "procedure", f"this file describes {name}, but the command runs {expect}")
+    plan = BY_NAME[name].expand(pf, robot)
+    plan.settings["max_distance_m"] = space_limit(pf)
+    check_limits(plan, robot, pf)
+    return plan

@@ -14,7 +14,10 @@ from omnibench.runs.store import (
     Run,
     RunWriter,
     find_runs,
+    is_run_dir,
     read_run,
+    run_dirs,
 )
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SAMPLE_COLUMNS", "Run", "RunWriter", "find_runs", "read_run"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "SAMPLE_COLUMNS", "Run", "RunWriter", "find_runs", "is_run_dir", "read_run",
+           "run_dirs"]

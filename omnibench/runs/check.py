@@ -97,3 +97,22 @@ def check_output(out: Path, runs: Iterable[Path] = ()) -> None:
     if (parent / "run.json").is_file() or any(parent == Path(r).resolve() for r in runs):
         raise UserError(f"--out {out}: is inside the run directory {parent}; write elsewhere (a run's files are "
                         "never overwritten)")
+
+
+def in_run(path: Path) -> Path | None:
+    """The run directory that `path` is, or lies in (None: not in a run)."""
+    p = Path(path).resolve()
+    for d in (p, *p.parents):
+        if (d / "run.json").is_file():
+            return d
+    return None
+
+
+def check_out_folder(path: Path, option: str = "--out") -> None:
+    """Refuse an output folder that is an existing file or lies in a run directory."""
+    if Path(path).exists() and not Path(path).is_dir():
+        raise UserError(f"{option} {path}: is a file, not a folder")
+    run = in_run(path)
+    if run is not None:
+        raise UserError(f"{option} {path}: is inside the run directory {run}; write elsewhere (a run's files "
+                        "are never overwritten)")

@@ -29,6 +29,7 @@ import pandas as pd
 from omnibench.errors import UserError
 
 FORMAT = "omnibench-run"
+RUN_FILE = "run.json"  #: a run directory's description (its presence makes a folder a run directory)
 FORMAT_VERSION = 1
 STATUSES = ("running", "complete", "aborted", "failed")
 
@@ -252,15 +253,34 @@ class RunInfo:
     imported: bool
     robot: dict[str, Any] | None
     raw: dict[str, Any] = field(repr=False)
+    port: str | None = None  #: the board's port (serial device, sim://...) the run was taken on
+    procedure_file: str | None = None  #: the procedure file the run was expanded from
+    robot_file: str | None = None  #: the robot file given (None: the shipped Omnibot)
+    board: dict[str, Any] | None = None  #: the board's HELLO: board_id, firmware_version, protocol_version, ...
+    mode: str | None = None  #: "ground" or "upside_down" for a trace-replay (imported) run
+    source: str | None = None  #: an imported run's source file
+    source_sha256: str | None = None  #: the SHA-256 of that source file (the importer's duplicate check)
+    sign_map: list[int] | None = None  #: an imported run's encoder signs, +1/-1 per wheel (FL FR RL RR)
+    direction: str | None = None  #: an imported ground run's driving direction, when the log says
+    #: how the firmware timed its commands (runs/tfm.py: sketch, command_order, command_offset_s, ...)
+    firmware_timing: dict[str, Any] | None = None
+    #: when a sample's duty acted: "interval_before" (omnibench boards) or "from_sample" (2019 logs);
+    #: None: not recorded (the reader's default by `imported`)
+    duty_timing: str | None = None
 
     @property
     def complete(self) -> bool:
         return self.status == "complete"
 
+    @property
+    def file(self) -> Path:
+        """The run.json this was read from (for messages naming it)."""
+        return self.path / RUN_FILE
+
 
 def parse_info(doc: Any, run_dir: Path, text: str = "") -> RunInfo:
     """Validate a run.json document (`text` gives line numbers); RunFileError on the first fault."""
-    where = run_dir / "run.json"
+    where = run_dir / RUN_FILE
     if not isinstance(doc, dict):
         raise RunFileError(f"{where}:1: not a run description (a JSON table is expected, found "
                            f"{type(doc).__name__})")
@@ -310,13 +330,30 @@ def parse_info(doc: Any, run_dir: Path, text: str = "") -> RunInfo:
                    counts_per_rev=float(cpr) if cpr is not None else None,
                    steps_planned=int(planned) if planned is not None else None,
                    steps_complete=int(doc.get("steps_complete") or 0), segments=tuple(segments),
-                   imported=bool(doc.get("imported", False)), robot=doc.get("robot"), raw=doc)
+                   imported=bool(doc.get("imported", False)), robot=doc.get("robot"), raw=doc,
+                   port=doc.get("port"), procedure_file=doc.get("procedure_file"), robot_file=doc.get("robot_file"),
+                   board=doc.get("board"), mode=doc.get("mode"), source=_text(doc.get("source")),
+                   source_sha256=_text(doc.get("source_sha256")), sign_map=_signs(doc.get("sign_map")),
+                   direction=_text(doc.get("direction")), firmware_timing=doc.get("firmware_timing"),
+                   duty_timing=doc.get("duty_timing"))
+
+
+def _text(value: Any) -> str | None:
+    """A free-form run.json field (not in RUN_FIELDS) as text, None when absent or not text."""
+    return value if isinstance(value, str) else None
+
+
+def _signs(value: Any) -> list[int] | None:
+    """`sign_map` (not in RUN_FIELDS): four +1/-1, else None."""
+    if isinstance(value, list) and len(value) == 4 and all(v in (1, -1) for v in value):
+        return [int(v) for v in value]
+    return None
 
 
 def read_info(run_dir: Path | str) -> RunInfo:
     """Read and validate `run_dir`/run.json (RunFileError naming file, line and field)."""
     run_dir = Path(run_dir)
-    where = run_dir / "run.json"
+    where = run_dir / RUN_FILE
     if not where.is_file():
         raise RunFileError(f"{run_dir}: not a run directory (no run.json)")
     try:

@@ -38,6 +38,7 @@ from omnibench.errors import Terminated, UserError
 from omnibench.runs.record import (  # noqa: F401 - the format's names, re-exported
     FORMAT,
     FORMAT_VERSION,
+    RUN_FILE,
     SAMPLE_COLUMNS,
     STATUSES,
     RunInfo,
@@ -520,25 +521,25 @@ class Run:
     """
 
     path: Path
-    metadata: dict[str, Any]
+    metadata: dict[str, Any]  #: run.json as read (prefer `info`'s typed fields)
     samples: pd.DataFrame
     events: pd.DataFrame
     steps: pd.DataFrame
-    info: RunInfo | None = None
+    info: RunInfo  #: run.json, validated and typed
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def run_id(self) -> str:
         """The run's (validated, file-name safe) id."""
-        return self.info.run_id if self.info is not None else str(self.metadata.get("run_id") or self.path.name)
+        return self.info.run_id
 
     @property
     def status(self) -> str:
-        return str(self.metadata.get("status"))
+        return self.info.status
 
     @property
     def procedure(self) -> str:
-        return str(self.metadata.get("procedure"))
+        return self.info.procedure
 
     def step_samples(self, step: int) -> pd.DataFrame:
         """Samples of `step` from the segment that completed it (an interrupted earlier
@@ -572,6 +573,18 @@ def read_run(path: Path | str) -> Run:
     if not len(steps):
         steps = pd.DataFrame(columns=["step", "segment"])
     return Run(path=path, metadata=info.raw, samples=samples, events=events, steps=steps, info=info)
+
+
+def run_dirs(folder: Path | str) -> list[Path]:
+    """The run directories directly in `folder` (each holds a run.json), sorted by name; [] when
+    `folder` is not a directory."""
+    folder = Path(folder)
+    return [p.parent for p in sorted(folder.glob(f"*/{RUN_FILE}"))] if folder.is_dir() else []
+
+
+def is_run_dir(path: Path | str) -> bool:
+    """Whether `path` is a run directory (holds a run.json)."""
+    return (Path(path) / RUN_FILE).is_file()
 
 
 def find_runs(root: Path | str, procedure: str | Sequence[str] | None = None) -> list[Path]:

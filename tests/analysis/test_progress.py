@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import sys
 
-from omnibench.cli.progress import working
+from omnibench.progress import working
 
 
 class _Tty(io.StringIO):

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 
 from omnibench.bench import live
-from omnibench.cli.progress import StageStatus, TeeStream
+from omnibench.progress import StageStatus, TeeStream
 
 
 class Clock:

@@ -11,7 +11,8 @@ from scipy.integrate import solve_ivp
 
 from omnibench.model import Scenario, simulate, simulate_batch
 from omnibench.model.context import GRAVITY
-from omnibench.model.geometry import inverse_kinematics, rotation, slip_matrix
+from omnibench.model.geometry import inverse_kinematics, slip_matrix
+from omnibench.model.reference import eq8_accelerations
 from omnibench.model.terms import all_terms
 
 # a duty schedule that accelerates, strafes, turns and brakes (t in s, duties FL FR RL RR)
@@ -114,37 +115,14 @@ def test_inverse_kinematics_is_the_usual_mecanum_pattern(omnibot):
 
 
 def _paper_eq8(robot, scenario, t_cmd, u_cmd, t_end, roller=True):
-    """Independent reference: the paper's eq. (8) in the WORLD frame with H and K as printed,
-    integrated by scipy. Returns a function t -> (x, y, psi)."""
-    R = inverse_kinematics(robot.L, robot.l, robot.r, robot.alpha)
-    S = slip_matrix(robot.L, robot.l, robot.alpha)
-    m = robot.m + scenario.payload
-    Mr = np.diag([m, m, robot.I_z])
-    Mw = robot.I_w * np.eye(4)
-    F_N = np.full(4, m * GRAVITY / 4)
-    sgn = lambda x, eps: np.tanh(x / eps)  # noqa: E731  (wheel speeds)
-    slip = lambda x, eps: x / np.sqrt(x * x + eps * eps)  # noqa: E731  (roller slip)
+    """Independent reference: the paper's eq. (8) in the WORLD frame with H and K as printed
+    (omnibench.model.reference), integrated by scipy. Returns a function t -> (x, y, psi)."""
     t_cmd = np.asarray(t_cmd)
 
     def rhs(t, y):
-        q, qd = y[:3], y[3:]
-        psi, psid = q[2], qd[2]
-        Rp = rotation(psi)
-        dRp = psid * np.array([[-np.sin(psi), -np.cos(psi), 0], [np.cos(psi), -np.sin(psi), 0], [0, 0, 0]])
-        H = Mr + Rp @ R.T @ Mw @ R @ Rp.T
-        K = Rp @ R.T @ Mw @ R @ dRp.T
-        u = np.asarray(u_cmd[np.searchsorted(t_cmd, t, side="right") - 1])
-        v = Rp.T @ qd
-        phid = R @ v
-        sigma = S @ v
-        i = (u * robot.V_batt - robot.k_e * phid) / robot.R_a
-        tau_fric = (1 + robot.c * F_N) * (robot.a * phid + robot.b * sgn(phid, robot.sign_width_phi))
-        Gamma = robot.eta * robot.k_t * i - tau_fric
-        tau_r = -F_N * robot.C_r * robot.r * sgn(phid, robot.sign_width_phi)
-        tau_p = -(1 + robot.c_r * F_N) * (robot.a_r * sigma + robot.b_r * slip(sigma, robot.sign_width_sigma))
-        F_rr = Rp @ S.T @ tau_p if roller else np.zeros(3)
-        qdd = np.linalg.solve(H, Rp @ R.T @ (Gamma + tau_r) + F_rr - K @ qd)
-        return np.concatenate([qd, qdd])
+        u = np.asarray(u_cmd[np.searchsorted(t_cmd, t, side="right") - 1], dtype=float)
+        qdd = eq8_accelerations(robot, u, y[:3], y[3:], payload=scenario.payload, roller=roller)
+        return np.concatenate([y[3:], qdd])
 
     sol = solve_ivp(rhs, (0, t_end), np.zeros(6), method="LSODA", rtol=1e-10, atol=1e-12,
                     dense_output=True, max_step=0.01, first_step=1e-5)

@@ -169,3 +169,31 @@ def test_a_sample_under_no_steps_command_does_not_make_the_run_unusable(tmp_path
     w.finish("complete")
     assert run_problem(w.path) is None
     assert len(read_run(w.path).step_samples(0)) == 5
+
+
+def test_run_info_types_the_fields_readers_use(tmp_path):
+    """The typed record: what the campaign report, the importer and the analysis read from
+    run.json, as RunInfo fields (no reader outside omnibench.runs parses run.json)."""
+    from omnibench.runs import is_run_dir, run_dirs
+    from omnibench.runs.record import read_info
+
+    path = tmp_path / "r1"
+    path.mkdir()
+    doc = {"format": "omnibench-run", "format_version": 1, "procedure": "step_response", "status": "complete",
+           "port": "sim://", "procedure_file": "p.toml", "robot_file": "robot.toml", "board": {"board_id": 7},
+           "mode": "ground", "source": "a log", "source_sha256": "ab" * 32, "sign_map": [1, -1, 1, -1],
+           "direction": "forward", "firmware_timing": {"sketch": "square"}, "duty_timing": "from_sample",
+           "imported": True}
+    (path / "run.json").write_text(json.dumps(doc))
+    info = read_info(path)
+    assert (info.port, info.procedure_file, info.robot_file, info.board) == ("sim://", "p.toml", "robot.toml",
+                                                                             {"board_id": 7})
+    assert (info.mode, info.source, info.source_sha256, info.direction) == ("ground", "a log", "ab" * 32, "forward")
+    assert info.sign_map == [1, -1, 1, -1] and info.firmware_timing == {"sketch": "square"}
+    assert info.duty_timing == "from_sample" and info.imported and info.file == path / "run.json"
+    assert run_dirs(tmp_path) == [path] and is_run_dir(path) and not is_run_dir(tmp_path)
+    assert run_dirs(tmp_path / "missing") == []
+    doc.update(sign_map=[2, 0, 1, 1], source=3)  # not a sign map, not text: absent rather than wrong
+    (path / "run.json").write_text(json.dumps(doc))
+    info = read_info(path)
+    assert info.sign_map is None and info.source is None

@@ -31,13 +31,12 @@ from omnibench.analysis.design.space import (
     build_space,
     sweep_hold,
 )
-from omnibench.procedures import load_plan
+from omnibench.procedures import COMMAND_OF, load_plan
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
 
 FILE_OF = {"sweep": "upside_down_sweep", "forward": "forward_runs", "lateral": "lateral_runs"}
-COMMAND_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral"}
 
 
 def space_from_files(robot: Robot, files: Mapping[str, str | Path], limits: Limits = Limits()) -> Space:

@@ -1,0 +1,241 @@
+"""fit, validate-energy and diagnose on run directories, as functions: what `omnibench fit`,
+`omnibench validate-energy` and `omnibench diagnose` do (read and check the runs, fit, validate or
+diagnose, write the model file and the figures), and what the campaign's analysis stages call.
+
+In the campaign layer because they orchestrate the analysis (the fit, the diagnosis in its own
+package, the model file, the plots) from above. Each returns what it did, with `to_json()` (the
+command's `--json` result) and `json_text()` (that result as the command prints it, also kept by
+the campaign). The commands only parse their options, call these and print; progress lines go to
+the `progress` function given (the commands and the campaign write them on stderr).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omnibench.analysis.diagnosis import Diagnosis, diagnose
+from omnibench.analysis.diagnosis.loro import HeldOutRuns, heldout_runs, trimmed
+from omnibench.analysis.diagnosis.report import write_model as write_diagnosed_model
+from omnibench.analysis.diagnosis.report import write_plots as write_diagnosis_plots
+from omnibench.analysis.fitting import FitResult, fit, fit_per_wheel
+from omnibench.analysis.model_file import load_model, write_model
+from omnibench.analysis.observations import PROCEDURES, Observations
+from omnibench.analysis.validate import EnergyValidation, validate_energy
+from omnibench.errors import UserError
+from omnibench.model import default_robot, load_robot
+from omnibench.model.robot import Robot
+from omnibench.progress import working
+from omnibench.runs.check import check_out_folder, check_output, checked_runs
+
+Lines = Callable[[str], None]
+
+
+def to_stderr(line: str) -> None:
+    """A progress line on stderr (where the commands and the campaign's stages put them)."""
+    print(line, file=sys.stderr, flush=True)
+
+
+def _silent(line: str) -> None:
+    """Drops the line (the `--json` output has no prose)."""
+
+
+def jsonable(obj: Any) -> Any:
+    """`obj` with numpy scalars as Python numbers, keys as strings and non-finite floats as None
+    (JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if hasattr(obj, "item"):
+        return jsonable(obj.item())
+    return obj
+
+
+def _json_text(data: Any) -> str:
+    return json.dumps(jsonable(data), indent=2, allow_nan=False)
+
+
+def model_robot(path: Path | None) -> tuple[Robot, dict[str, Any]]:
+    """The robot of a model file (or plain robot file) and its [fit] table; the shipped Omnibot
+    and {} for None."""
+    if path is None:
+        return default_robot(), {}
+    return load_model(path)
+
+
+# --------------------------------------------------------------------------- fit
+@dataclass
+class FitDone:
+    """What `omnibench fit` did: the fit, the per-wheel sweep fits, the files written."""
+
+    result: FitResult
+    wheels: dict[int, FitResult]  #: wheel (1-4) -> its own upside-down sweep fit (a, b, c)
+    model_path: Path  #: the model file written
+    figures: list[str]  #: the figures written
+
+    def to_json(self) -> dict[str, Any]:
+        data = self.result.to_json()
+        data["per_wheel"] = {str(j): r.to_json()["parameters"] for j, r in self.wheels.items()}
+        data["model_file"] = str(self.model_path)
+        data["plots"] = self.figures
+        return data
+
+    def json_text(self) -> str:
+        return _json_text(self.to_json())
+
+
+def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None, free: list[str] | None = None,
+             procedures: list[str] | None = None, per_wheel: bool = True, plots: Path | None = None,
+             skip_bad: bool = False, progress: Lines = to_stderr, say: Lines = _silent) -> FitDone:
+    """Fit every coefficient the runs measure (weighted least squares through the simulator),
+    write the model file `out` and, with `plots`, the figures there.
+
+    free: the parameters to fit (default: what the runs measure); procedures: the observation
+    tables that enter the fit (default: sweep, forward, lateral); per_wheel: also fit the
+    upside-down sweep of each wheel on its own. progress: skipped runs and the like; say: what the
+    text output tells before the fit (nothing in JSON)."""
+    robot, _ = model_robot(robot_file)
+    good = checked_runs(runs, skip_bad=skip_bad, echo=progress)
+    check_output(out, good)
+    if plots is not None:
+        check_out_folder(plots, "--plots")
+    obs = Observations.from_runs(good, robot)
+    if procedures is not None:
+        bad = [p for p in procedures if p not in PROCEDURES]
+        if bad or not procedures:
+            raise UserError(f"--procedures: {', '.join(bad) or 'empty'}; choose from {', '.join(PROCEDURES)}")
+        if not any(len(obs.table(p)) for p in procedures):
+            raise UserError(f"none of the runs holds {', '.join(procedures)} observations ({obs.summary()})")
+    elif not any(len(obs.table(p)) for p in ("sweep", "forward", "lateral")):
+        raise UserError("none of the runs is a sweep, forward or lateral run: nothing to fit "
+                        f"({obs.summary()})")
+    say(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
+    say("Fitting through the simulator (weighted least squares)...")
+    with working("fitting"):
+        result = fit(robot, obs, free, procedures=procedures)
+    wheels = {}
+    if per_wheel and "sweep" in result.procedures and obs.sweep["wheel"].nunique() > 1:
+        wheels = fit_per_wheel(result.robot, obs, ["a", "b", "c"])
+    paths = [obs.runs[r]["path"] or r for r in result.runs_used]
+    model_path = write_model(out, result, [str(p) for p in paths], per_wheel=wheels or None)
+    figures = []
+    if plots is not None:
+        from omnibench.analysis import plots as pl
+
+        if "sweep" in result.procedures:
+            figures.append(str(pl.plot_sweep_fit(result.robot, obs, result.residuals, plots)))
+        figures.append(str(pl.plot_residuals(result.residuals, plots)))
+    return FitDone(result, wheels, model_path, figures)
+
+
+# --------------------------------------------------------------------------- validate-energy
+@dataclass
+class ValidationDone:
+    """What `omnibench validate-energy` did: predicted vs measured battery energy per run."""
+
+    validation: EnergyValidation
+    model: Path  #: the model file validated
+    figure: Path | None  #: the current-trace figure, when asked for
+
+    def to_json(self) -> dict[str, Any]:
+        data = self.validation.to_json()
+        data["model"] = str(self.model)
+        data["plots"] = [str(self.figure)] if self.figure else []
+        return data
+
+    def json_text(self) -> str:
+        return _json_text(self.to_json())
+
+
+def validate_runs(runs: Sequence[Path], *, model: Path, plots: Path | None = None, skip_bad: bool = False,
+                  progress: Lines = to_stderr) -> ValidationDone:
+    """Replay each energy run's duties through the model file `model` and compare predicted with
+    measured battery energy (paper IV); with `plots`, the current-trace figure there."""
+    if plots is not None:
+        check_out_folder(plots, "--plots")
+    robot, _ = model_robot(model)
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=progress), robot)
+    val = validate_energy(robot, obs)
+    fig = None
+    if plots is not None:
+        from omnibench.analysis.plots import plot_energy
+
+        fig = plot_energy(val, plots)
+    return ValidationDone(val, model, fig)
+
+
+# --------------------------------------------------------------------------- diagnose
+def _diagnosis_number(x: object) -> object:
+    """json.dumps `default` of diagnose's JSON: numpy scalars as numbers (non-finite as None),
+    anything else as its text."""
+    try:
+        v = float(x)  # type: ignore[arg-type]  # numpy scalars
+    except (TypeError, ValueError):
+        return str(x)
+    return v if math.isfinite(v) else None
+
+
+@dataclass
+class DiagnosisDone:
+    """What `omnibench diagnose` did: the diagnosis, the leave-one-run-out check when asked for,
+    the files written ({"model": path, "plots": [paths]})."""
+
+    diagnosis: Diagnosis
+    held: HeldOutRuns | None
+    written: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.diagnosis.to_json(), "written": self.written,
+                "leave_one_run_out": self.held.to_json() if self.held else None}
+
+    def json_text(self) -> str:
+        return json.dumps(self.to_json(), indent=2, default=_diagnosis_number)
+
+
+def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None, plots: Path | None = None,
+                  candidates: list[str] | None = None, procedures: list[str] | None = None, alpha: float = 1e-3,
+                  max_effects: int = 3, seed: int = 0, loro: bool = False,
+                  progress: Lines = to_stderr) -> DiagnosisDone:
+    """Fit the declared model `model` to the runs, find residual structure, add the library
+    effects that earn their parameters on held-out run steps; write the extended model to `out`
+    and the before/after plots to `plots` when given (docs/diagnose.md).
+
+    candidates: only these effects (default: the library); procedures: only these observation
+    tables; alpha: family-wise significance level; loro: also leave-one-run-out (an addition that
+    costs a run is a trade-off, left out of the written model). progress: lines as it goes."""
+    good = tuple(checked_runs(runs))
+    if out is not None:
+        check_output(out, good)
+    if plots is not None:
+        check_out_folder(plots, "--plots")
+    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
+    fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
+    obs = Observations.from_runs(good, robot=robot)
+    if not obs.procedures():
+        raise UserError("the runs hold no measurements diagnose can use (sweep, forward, lateral, energy, step_response)")
+
+    def say(msg: str) -> None:
+        progress(f"diagnose: {msg}")
+
+    diag = diagnose(robot, obs, candidates=candidates, procedures=procedures, alpha=alpha, max_effects=max_effects,
+                    seed=seed, progress=say, fit_info=fit_info)
+    held = None
+    if loro:
+        if len(obs.run_ids) < 2:
+            raise UserError("--loro needs at least two runs (each is predicted from the others)")
+        held = heldout_runs(diag, obs, progress=say)
+    written: dict[str, Any] = {}
+    if out is not None:
+        kept = trimmed(diag, held, obs) if held is not None and held.tradeoffs else diag
+        written["model"] = str(write_diagnosed_model(kept, out))
+    if plots is not None:
+        written["plots"] = [str(p) for p in write_diagnosis_plots(diag, plots)]
+    return DiagnosisDone(diag, held, written)
