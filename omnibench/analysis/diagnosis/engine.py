@@ -125,7 +125,7 @@ class Problem:
         #: parameter name -> group keys (seen unchanged by its difference step at two points, and
         #: never changed); a Jacobian does not simulate them for that parameter (`predict_steps`)
         self.blind: dict[str, set[tuple]] = {}
-        self._unchanged: dict[tuple[str, tuple], int] = {}
+        self._unchanged: dict[tuple[str, tuple], set[str] | None] = {}  # points seen unchanged; None: moved
         self._group_idx = self.pred.group_entries()
 
     def __len__(self) -> int:
@@ -145,17 +145,19 @@ class Problem:
         skip = {key: {1 + j for j, n in enumerate(names) if key in self.blind.get(n, ())}
                 for key in self._group_idx}
         F = self.predict(robots) if not any(skip.values()) else self._predict_skipping(robots, skip)
+        point = repr(robots[0])
         for key, idx in self._group_idx.items():
             for j, n in enumerate(names):
-                if 1 + j in skip[key] or self._unchanged.get((n, key), 0) < 0:
+                seen = self._unchanged.get((n, key), set())
+                if 1 + j in skip[key] or seen is None:
                     continue
                 if np.array_equal(F[1 + j, idx], F[0, idx]):
-                    seen = self._unchanged.get((n, key), 0) + 1
+                    seen = seen | {point}
                     self._unchanged[(n, key)] = seen
-                    if seen >= 2:
+                    if len(seen) >= 2:
                         self.blind.setdefault(n, set()).add(key)
                 else:
-                    self._unchanged[(n, key)] = -1  # it moves them somewhere: never blind
+                    self._unchanged[(n, key)] = None  # it moves them somewhere: never blind
         return F
 
     def _predict_skipping(self, robots: Sequence[Any], skip: Mapping[tuple, set[int]]) -> np.ndarray:
@@ -427,11 +429,8 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                 start[p] = v
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
     best = None
-    for k, st in enumerate(_restarts(effect, start)):
-        # the first start is the screen's estimate (or the effect's start): searched along its
-        # direction; the restarts are alternatives that are tried as they are
-        robot = (_line_start(problem, current, effect, st) if k == 0
-                 else compensated(problem, current, _robot_with_effect(current.robot, effect, st)))
+    for st in _restarts(effect, start):
+        robot = _robot_with_effect(current.robot, effect, st)
         f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale)
         if best is None or f.deviance < best.deviance:
             best = f
@@ -459,74 +458,7 @@ def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect
         vals.update({k.split(".", 1)[1]: v for k, v in st.items() if k.startswith(eff.name + ".")})
         robot = _robot_with_effect(robot, eff, vals)
         free += [f"{eff.name}.{p}" for p in eff.fit]
-    return fit_model(problem, compensated(problem, current, robot), free, max_nfev=max_nfev, scale=current.scale)
-
-
-#: sizes tried along a start's direction (times the start's size parameters): `_line_start`
-LINE_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
-
-
-def _line_start(problem: Problem, current: ModelFit, effect: Effect, start: Mapping[str, float]) -> Any:
-    """The start robot of a candidate fit: `start` with its size parameters scaled by the
-    LINE_FACTORS factor whose compensated start (`compensated`) fits the data best (two
-    simulations per factor). The first-order estimate is a secant over the effect's start size:
-    a deadband of 0.04 was estimated at 0.019, and the fit spent every evaluation of its settle
-    passes walking the curved valley between them."""
-    specs = {p.name: p for p in effect.term.params}
-    size = [p for p in effect.fit if p in getattr(effect, "size_params", ()) and start.get(p, 0.0) != 0.0]
-    if not size:
-        return compensated(problem, current, _robot_with_effect(current.robot, effect, start))
-    w = current.weights(problem)
-    best: tuple[float, Any] | None = None
-    for k in LINE_FACTORS:
-        st = dict(start)
-        for p in size:
-            st[p] = float(np.clip(k * start[p], specs[p].lower, specs[p].upper))
-        robot, cost = _compensated_cost(problem, current, _robot_with_effect(current.robot, effect, st), w)
-        if best is None or cost < best[0]:
-            best = (cost, robot)
-    assert best is not None
-    return best[1]
-
-
-def compensated(problem: Problem, current: ModelFit, robot: Any) -> Any:
-    """The start of a refit of `current` with effects added (`robot`: current's parameters, the
-    effects at their start values): the current model's parameters moved by the weighted
-    Gauss-Newton step that compensates the effects' change of the predictions (one simulation;
-    with current's Jacobian), when that fits the data better than leaving them where they were.
-
-    Why: the current fit's parameters absorbed part of what the effect does (a missing deadband
-    lowers the fitted friction); the effect added on top of them starts far from the joint
-    optimum (the deviance of an undeclared deadband's start was 10^5 times its optimum's), and
-    the fit spends its evaluations walking back. Where it ends is the same optimum."""
-    return _compensated_cost(problem, current, robot, current.weights(problem))[0]
-
-
-def _compensated_cost(problem: Problem, current: ModelFit, robot: Any, w: np.ndarray) -> tuple[Any, float]:
-    """`compensated` and its weighted sum of squares (weights w; inf when not finite)."""
-    used = problem.used
-    cost = lambda f: float(np.sum(((problem.y - f) * w)[used] ** 2))  # noqa: E731
-    if not current.free or current.J.shape[1] != len(current.free):
-        f = problem.predict([robot])[0]
-        return robot, (cost(f) if np.all(np.isfinite(f[used])) else math.inf)
-    f_eff = problem.predict([robot])[0]
-    d = (f_eff - current.f)[used] * w[used]
-    if not np.all(np.isfinite(d)):
-        return robot, math.inf
-    if not np.any(d):
-        return robot, cost(f_eff)
-    A = (current.J * w[:, None])[used]
-    delta, *_ = np.linalg.lstsq(A, -d, rcond=None)
-    vals = {}
-    for p, dv in zip(current.free, delta):
-        lo, hi = param_bounds(robot, p)
-        vals[p] = float(np.clip(param_value(robot, p) + dv, lo, hi))
-    moved = with_params(robot, vals)
-    f_moved = problem.predict([moved])[0]
-    c_eff = cost(f_eff)
-    if np.all(np.isfinite(f_moved[used])) and cost(f_moved) < c_eff:
-        return moved, cost(f_moved)
-    return robot, c_eff
+    return fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale)
 
 
 def lr_test(base: ModelFit, alt: ModelFit, q: int) -> tuple[float, float]:
