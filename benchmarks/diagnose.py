@@ -26,6 +26,12 @@ clean: worlds with any addition.
     .venv/bin/python benchmarks/diagnose.py --from-json results.json     # figures of an interrupted run
     .venv/bin/python benchmarks/diagnose.py --seeds 5 --skip 5 --json more.json   # seeds 1005-1009
     .venv/bin/python benchmarks/diagnose.py --from-json results.json,more.json
+    .venv/bin/python benchmarks/diagnose.py --seeds 1 --only driver_deadband --before main
+
+--before REF also runs the same diagnoses with the omnibench of git ref REF (a temporary
+detached worktree, this script, PYTHONPATH) and prints both, diagnosis by diagnosis: the
+effects selected and the first effect's values +- SE, flagged where they differ (another
+selection, or a value moved by more than its SE): a speed-up must give the same answers.
 
 Jobs run seed-major (every world's first seed, then every world's second, ...), and --json is
 rewritten after each diagnosis, so an interrupted run still gives every world the same seeds.
@@ -35,10 +41,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
 
 TABLE_OF = {"upside_down_sweep": "sweep", "forward_runs": "forward", "lateral_runs": "lateral",
             "energy_trajectories": "energy", "step_response": "step_response"}
@@ -90,7 +103,7 @@ def _one(job: tuple) -> dict:
         if name in EFFECTS:
             ratios += [d.after[TABLE_OF[p]]["nrmse"] / d.before[TABLE_OF[p]]["nrmse"]
                        for p in EFFECTS[name].procedures if TABLE_OF[p] in d.before]
-    return {"kind": kind, "label": label, "selected": names, "covered": covered, "fitted": fitted, "ratios": ratios,
+    return {"kind": kind, "label": label, "seed": seed, "selected": names, "covered": covered, "fitted": fitted, "ratios": ratios,
             "unexplained": len(d.unexplained), "seconds": time.time() - t0}
 
 
@@ -171,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated world labels (as printed) to run")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     ap.add_argument("--json", default="", help="also write the results to this JSON file")
+    ap.add_argument("--before", default="", metavar="REF",
+                    help="also run the same diagnoses with git ref REF's omnibench and print both side by side")
     ap.add_argument("--from-json", default="",
                     help="only print the figures of (possibly interrupted) runs' JSON files, comma-separated")
     args = ap.parse_args(argv)
@@ -216,7 +231,70 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump({"summary": summary, "runs": results}, fh, indent=2)
+    if args.before:
+        before = run_at_ref(args.before, [a for a in (argv if argv is not None else sys.argv[1:])])
+        print(f"\n--- the same diagnoses with {args.before}'s omnibench ---")
+        summarise(before, args.generator, sum(r["seconds"] for r in before))
+        print()
+        print(side_by_side(before, results, args.before))
     return 0
+
+
+def _without(argv: list[str], option: str) -> list[str]:
+    """argv without `option` and its value (as '--opt v' or '--opt=v')."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == option:
+            skip = True
+        elif not a.startswith(option + "="):
+            out.append(a)
+    return out
+
+
+def run_at_ref(ref: str, argv: list[str]) -> list[dict]:
+    """This script's results with git ref `ref`'s omnibench (a temporary detached worktree on
+    PYTHONPATH; the same arguments without --before and --json)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "tree"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True,
+                       capture_output=True)
+        try:
+            out = Path(tmp) / "before.json"
+            args = _without(_without(argv, "--before"), "--json") + ["--json", str(out)]
+            env = {**os.environ, "PYTHONPATH": str(tree)}
+            subprocess.run([sys.executable, str(HERE), *args], env=env, check=True, stdout=subprocess.DEVNULL)
+            return json.loads(out.read_text())["runs"]
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False,
+                           capture_output=True)
+
+
+def side_by_side(before: list[dict], after: list[dict], ref: str) -> str:
+    """Per diagnosis (world, seed): the effects selected and the first one's values +- SE before
+    (git ref) and now, flagged DIFFERENT where the selection differs or a value moved by more
+    than the larger of its two SEs; with each diagnosis' wall seconds."""
+    old = {(r["label"], r.get("seed")): r for r in before}
+    lines = [f"{'world':<34} {'seed':>5}  {ref + ' (before)':<44} {'this tree (after)':<44} verdict"]
+    n_diff = 0
+    for r in after:
+        b = old.get((r["label"], r.get("seed")))
+        if b is None:
+            continue
+
+        def show(x: dict) -> str:
+            vals = ", ".join(f"{k.split('.')[-1]}={v['value']:.4g}±{v['se']:.2g}" for k, v in x["fitted"].items())
+            return ("+".join(x["selected"]) or "-") + (f" ({vals})" if vals else "") + f" {x['seconds']:.0f}s"
+
+        same = b["selected"] == r["selected"] and all(
+            k in b["fitted"] and abs(v["value"] - b["fitted"][k]["value"]) <= max(v["se"], b["fitted"][k]["se"])
+            for k, v in r["fitted"].items()) and set(b["fitted"]) == set(r["fitted"])
+        n_diff += not same
+        lines.append(f"{r['label']:<34} {r.get('seed', ''):>5}  {show(b):<44} {show(r):<44} "
+                     f"{'same' if same else 'DIFFERENT'}")
+    lines.append(f"{len(after) - n_diff} of {len(after)} diagnoses give the same answer as {ref}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

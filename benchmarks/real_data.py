@@ -17,6 +17,11 @@ documented) is in no fold. It also prints the firmware timing each run was predi
 
     .venv/bin/python benchmarks/real_data.py                  # ~10 min on 2 busy cores
     .venv/bin/python benchmarks/real_data.py --data DIR --json out.json
+    .venv/bin/python benchmarks/real_data.py --before main   # also main's results, side by side
+
+--before REF runs this script with git ref REF's omnibench too (a temporary detached worktree
+on PYTHONPATH) and prints the two diagnoses (effects added, values +- SE) and leave-one-run-out
+tables side by side: a speed-up must give the same answers.
 """
 
 from __future__ import annotations
@@ -24,12 +29,16 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
 DEFAULT_DATA = next((p / "shared" / "data" / "omnibot-tfm" for p in HERE.parents
                      if (p / "shared" / "data" / "omnibot-tfm").is_dir()), Path("/work/shared/data/omnibot-tfm"))
 
@@ -38,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of the 2019 .mat files")
     ap.add_argument("--json", default="", help="also write the results to this JSON file")
+    ap.add_argument("--before", default="", metavar="REF",
+                    help="also run with git ref REF's omnibench and print both results side by side")
     args = ap.parse_args(argv)
 
     from omnibench.analysis.diagnosis import diagnose
@@ -89,10 +100,54 @@ def main(argv: list[str] | None = None) -> int:
         print()
         print(lofo.text())
         print(f"(leave-one-firmware-out: {time.time() - t0:.0f} s)")
+        now = {"diagnosis": d.to_json(), "leave_one_run_out": held.to_json(),
+               "leave_one_firmware_out": lofo.to_json(), "seconds": {"diagnose": t_diag}}
         if args.json:
-            Path(args.json).write_text(json.dumps({"diagnosis": d.to_json(), "leave_one_run_out": held.to_json(),
-                                                   "leave_one_firmware_out": lofo.to_json()}, indent=2))
+            Path(args.json).write_text(json.dumps(now, indent=2))
+    if args.before:
+        print()
+        print(side_by_side(before_results(args.before, args.data), now, args.before))
     return 0
+
+
+def before_results(ref: str, data: Path) -> dict[str, Any]:
+    """This script's JSON results with git ref `ref`'s omnibench (temporary detached worktree)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "tree"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True,
+                       capture_output=True)
+        try:
+            out = Path(tmp) / "before.json"
+            env = {**os.environ, "PYTHONPATH": str(tree)}
+            subprocess.run([sys.executable, str(HERE), "--data", str(data), "--json", str(out)], env=env, check=True,
+                           stdout=subprocess.DEVNULL)
+            return json.loads(out.read_text())
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False,
+                           capture_output=True)
+
+
+def side_by_side(before: dict[str, Any], after: dict[str, Any], ref: str) -> str:
+    """The effects added (values +- SE) and the leave-one-run-out NRMSE, before (ref) and now."""
+    def added(res: dict[str, Any]) -> list[str]:
+        return [f"{s['effect']}: " + ", ".join(f"{k.split('.')[-1]} = {v['value']:.4g} ± {v['se']:.2g}"
+                                               for k, v in s["parameters"].items())
+                for s in res["diagnosis"]["selected"]]
+
+    lines = [f"{'':<44} {ref + ' (before)':<44} this tree (after)"]
+    a0, a1 = added(before), added(after)
+    for k in range(max(len(a0), len(a1))):
+        lines.append(f"{'added' if k == 0 else '':<44} {(a0[k] if k < len(a0) else '-'):<44} "
+                     f"{a1[k] if k < len(a1) else '-'}")
+    secs = before.get("seconds", {}).get("diagnose")
+    lines.append(f"{'diagnose, wall s':<44} {(f'{secs:.0f}' if secs else '?'):<44} {after['seconds']['diagnose']:.0f}")
+    runs0 = {r["run"]: r for r in before["leave_one_run_out"]["runs"]}
+    lines.append("leave-one-run-out NRMSE, % (stages: " + ", ".join(after["leave_one_run_out"]["stages"]) + ")")
+    for r in after["leave_one_run_out"]["runs"]:
+        b = runs0.get(r["run"], {}).get("nrmse", {})
+        fmt = lambda d: " ".join(f"{100 * v:.2f}" for v in d.values())  # noqa: E731
+        lines.append(f"  {r['run'][:42]:<42} {fmt(b):<44} {fmt(r['nrmse'])}")
+    return "\n".join(lines)
 
 
 def timing_table(obs, name, held) -> str:

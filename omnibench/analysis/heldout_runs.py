@@ -13,6 +13,7 @@ training traces' wheel speeds.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -152,16 +153,21 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
     if floor:
         folds += [(r, air) for r in floor]
     out = []
+    t0, done = time.process_time(), 0  # CPU seconds and folds done: the ETA of the rest
     for k, (held, train_runs) in enumerate(folds):
         if not train_runs:
             continue
+        eta = (f"; about {_mmss((time.process_time() - t0) / done * (len(folds) - k))} CPU left"
+               if done else "")
+        done += 1
         train = obs.select(runs=train_runs)
         err = RunError(held, run_kind(obs, held), "steady speed" if run_kind(obs, held) == "sweep" else "wheel speed")
         alts = _timing_alternatives(obs, held)
         if alts:
             err.assumed_sketch = str(obs.runs[held].get("timing_sketch", err.assumed_sketch))
         for label, model in models.items():
-            say(f"{held} (held-out run {k + 1} of {len(folds)}): fitting {label} to {len(train_runs)} other run(s)")
+            say(f"{held} (held-out run {k + 1} of {len(folds)}{eta}): fitting {label} to {len(train_runs)} other run(s)")
+            eta = ""
             fitted = fit_physics(model, train, max_nfev)
             err.nrmse[label], series = run_error(fitted, obs, held)
             if series is not None:
@@ -178,6 +184,10 @@ def leave_one_run_out(models: dict[str, PhysicsModel], obs: Observations, *, bas
                 err.nrmse[label] = baseline.fit_black_box(train_tr, dead).nrmse(held_tr[0])
         out.append(err)
     return out
+
+
+def _mmss(seconds: float) -> str:
+    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
 
 
 def _timing_alternatives(obs: Observations, run: str) -> dict[str, Observations]:

@@ -255,3 +255,26 @@ def test_a_candidate_is_judged_at_the_weights_its_own_fit_settles_to(omnibot):
     assert abs(u - 0.03) <= 3 * se and se < 1e-3
     again = engine.fit_model(problem, cand.robot, cand.free, max_nfev=15, passes=1, scale=cand.scale)
     assert abs(again.values["driver_deadband.u_0"] - u) < 0.2 * se
+
+
+def test_jacobians_skip_only_the_groups_a_parameter_does_not_move(omnibot):
+    """engine.Problem.predict_steps learns which simulation groups a parameter's difference step
+    leaves unchanged (seen at two points) and stops simulating them: the stencil's predictions
+    must be bit for bit those of simulating everything (a fresh Problem), and something must
+    have been skipped (upside down, the sweep does not see the ground's parameters)."""
+    import numpy as np
+
+    from omnibench.analysis.diagnosis import engine
+    from omnibench.analysis.diagnosis.core import _base_free
+    from omnibench.analysis.fitting import param_scale, param_value, with_params
+
+    obs = campaign(omnibot, CampaignSpec(("sweep", "forward")), {}, seed=3)
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    fit = engine.fit_model(problem, start, free, max_nfev=10)
+    assert any(problem.blind.values()), problem.blind
+    robot = with_params(fit.robot, {p: 1.01 * param_value(fit.robot, p) for p in free})
+    stencil = [robot] + [with_params(robot, {p: param_value(robot, p) + 1e-4 * param_scale(robot, p)}) for p in free]
+    skipped = problem.predict_steps(stencil, free)
+    full = engine.Problem(obs, obs.procedures()).predict(stencil)
+    assert np.array_equal(skipped, full, equal_nan=True)

@@ -364,6 +364,7 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
         tried: list[Candidate] = []
         passing: list[Candidate] = []
+        fit_seconds: list[float] = []  # CPU seconds of each candidate fit this round (for the ETA)
         best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
         # how many the screen sends to a full fit (the fallback may add more): for the progress line
         strong = [e for e in pool if scr.approx_lr[e.name] / thr[e.name]
@@ -377,14 +378,19 @@ def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None 
             fallback = not passing and top_k <= n_fitted < MAX_FITS
             leading = ratio >= RELATIVE_SCREEN * best_ratio
             if ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION:
-                say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {max(n_lead, n_fitted + 1)}"
-                    + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "") + ")")
+                n_all = max(n_lead, n_fitted + 1)
+                say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {n_all}"
+                    + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "")
+                    + _eta(fit_seconds, n_all - n_fitted) + ")")
+                t_fit = time.process_time()
                 try:
                     cf, c.form, c.form_margin = _fit_forms(problem, current, e, scr.estimate[e.name])
                 except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
                     c.reason = f"fit failed ({exc.__class__.__name__})"
                     tried.append(c)
                     continue
+                finally:
+                    fit_seconds.append(time.process_time() - t_fit)
                 if evaluate(c, [e.with_form(c.form)], cf, alpha / m):
                     passing.append(c)
             else:
@@ -508,6 +514,14 @@ def _timed(progress: Callable[[str], None] | None) -> Callable[[str], None]:
         last[0] = now
         progress(f"{msg} [{_mmss(now - t0)}{step}]")
     return say
+
+
+def _eta(seconds: Sequence[float], remaining: int) -> str:
+    """'' or ', about m:ss CPU left for them': the mean CPU time of the candidate fits done so far
+    times the `remaining` ones (this one included; rough: candidates and their forms differ)."""
+    if not seconds or remaining <= 0:
+        return ""
+    return f", about {_mmss(remaining * float(np.mean(seconds)))} CPU left for them"
 
 
 def _mmss(s: float) -> str:

@@ -121,6 +121,12 @@ class Problem:
             self.floor[g] = (MIN_SCALE_KNOWN if not str(g).endswith("/no-se")
                              else MIN_SCALE_UNKNOWN * float(np.sqrt(np.mean(self.y[m] ** 2))) or 1e-12)
         self.nfev = 0
+        #: simulation groups (Predictor.group_entries) whose predictions a parameter does not move:
+        #: parameter name -> group keys (seen unchanged by its difference step at two points, and
+        #: never changed); a Jacobian does not simulate them for that parameter (`predict_steps`)
+        self.blind: dict[str, set[tuple]] = {}
+        self._unchanged: dict[tuple[str, tuple], set[str] | None] = {}  # points seen unchanged; None: moved
+        self._group_idx = self.pred.group_entries()
 
     def __len__(self) -> int:
         return len(self.y)
@@ -129,6 +135,34 @@ class Problem:
         """Predictions (len(robots), n entries)."""
         self.nfev += len(robots)
         return self.pred.predict(list(robots))
+
+    def predict_steps(self, robots: Sequence[Any], names: Sequence[str]) -> np.ndarray:
+        """Predictions (len(robots), n entries) of a difference stencil: robots[j + 1] is robots[0]
+        with parameter names[j] stepped. A group the parameter is known not to move (`blind`)
+        is not simulated for it: its predictions are robots[0]'s, bit for bit what the
+        simulation would give. Learns `blind` from what it simulates: a group counts as blind
+        to a parameter once two of its steps (at different points) changed nothing there."""
+        skip = {key: {1 + j for j, n in enumerate(names) if key in self.blind.get(n, ())}
+                for key in self._group_idx}
+        F = self.predict(robots) if not any(skip.values()) else self._predict_skipping(robots, skip)
+        point = repr(robots[0])
+        for key, idx in self._group_idx.items():
+            for j, n in enumerate(names):
+                seen = self._unchanged.get((n, key), set())
+                if 1 + j in skip[key] or seen is None:
+                    continue
+                if np.array_equal(F[1 + j, idx], F[0, idx]):
+                    seen = seen | {point}
+                    self._unchanged[(n, key)] = seen
+                    if len(seen) >= 2:
+                        self.blind.setdefault(n, set()).add(key)
+                else:
+                    self._unchanged[(n, key)] = None  # it moves them somewhere: never blind
+        return F
+
+    def _predict_skipping(self, robots: Sequence[Any], skip: Mapping[tuple, set[int]]) -> np.ndarray:
+        self.nfev += len(robots)
+        return self.pred.predict(list(robots), same_as_first=skip)
 
     # ----------------------------------------------------------------- likelihood pieces
     def rss(self, f: np.ndarray) -> dict[str, tuple[float, int]]:
@@ -242,12 +276,9 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
             # prediction there is cached, and only the shifted points are simulated
             key = xv.tobytes()
             shifted = [xv + steps[j] * np.eye(len(xv))[j] for j in range(len(xv))]
-            if key in cache:
-                f0, F = cache[key], problem.predict([at(v) for v in shifted])
-            else:
-                F = problem.predict([at(v) for v in [xv] + shifted])
-                f0, F = F[0], F[1:]
-                cache[key] = f0
+            F = problem.predict_steps([at(v) for v in [xv] + shifted], free)
+            f0, F = F[0], F[1:]
+            cache[key] = f0
             return -((F - f0) / steps[:, None] * w).T[used]
 
         if free:
@@ -266,7 +297,7 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
         xs = [x] + [x + steps[j] * np.eye(len(x))[j] for j in range(len(x))]
-        F = problem.predict([at(v) for v in xs])
+        F = problem.predict_steps([at(v) for v in xs], free)
         f0 = F[0]
         J = ((F[1:] - F[0]) / steps[:, None]).T / scl
     else:
