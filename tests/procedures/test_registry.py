@@ -87,3 +87,15 @@ def test_the_package_names_every_public_name_once() -> None:
 
     assert sorted(procedures.__all__) == sorted(procedures._HOME)
     assert all(getattr(procedures, name) is not None for name in procedures.__all__)
+
+
+def test_help_lists_the_procedures_without_loading_the_model() -> None:
+    """`omnibench --help` reads the registry, which names expanders by module: the model (numba,
+    numpy) is not imported for it."""
+    code = ("import sys\nfrom omnibench.cli import main\ntry:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in sys.modules if m in ('numpy', 'numba', 'omnibench.model', "
+            "'omnibench.procedures.plan')), file=sys.stderr)")
+    done = subprocess.run([sys.executable, "-c", code], text=True, capture_output=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "sweep" in done.stdout and "energy" in done.stdout
+    assert done.stderr.strip() == "[]"
