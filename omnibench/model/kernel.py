@@ -53,6 +53,7 @@ from pathlib import Path
 
 from omnibench.model import context, lanes
 from omnibench.model.terms import HOOKS, Layout, layout
+from omnibench.resources import cache_root
 
 # Robot vector rv: per-trajectory constants.
 RV_NAMES = (
@@ -795,10 +796,7 @@ _CACHE: dict[str, object] = {}
 
 
 def _cache_dir() -> Path:
-    base = os.environ.get("OMNIBENCH_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.join(Path.home(), ".cache")), "omnibench"
-    )
-    path = Path(base) / "kernels"
+    path = cache_root() / "kernels"
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / f".write-test-{os.getpid()}"  # per process: parallel test workers share the folder

@@ -8,11 +8,15 @@ make pint compute (pint evaluates arithmetic in quantity strings); it is refused
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from functools import lru_cache
+from pathlib import Path
 
 import pint
+
+from omnibench.resources import cache_root
 
 _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d{1,3})?"
 _NAME = r"[^\W\d](?:[^\W]|°)*|°|%|Ω|µ\w*"
@@ -24,13 +28,26 @@ MAX_LENGTH = 64  #: longer strings are refused before any parsing
 
 @lru_cache(maxsize=1)
 def registry() -> pint.UnitRegistry:
-    """pint's registry, its parsed definitions cached on disk by pint (~/.cache/pint: 0.05 s
-    instead of 0.3-0.5 s of CPU in every command that reads a robot file); uncached when that
-    folder cannot be used."""
+    """pint's registry, its parsed definitions cached on disk by pint (0.05 s instead of
+    0.3-1 s of CPU in every command that reads a robot file); uncached when that folder cannot
+    be used.
+
+    The cache is kept per pint installation (`pint_cache_folder`): pint's own default folder
+    (~/.cache/pint) is shared by every environment, and its entries name the definition files of
+    the environment that wrote them, so once that environment is deleted every other one fails
+    to read the cache and silently pays the uncached parse."""
     try:
-        return pint.UnitRegistry(cache_folder=":auto:")
+        return pint.UnitRegistry(cache_folder=pint_cache_folder())
     except Exception:  # noqa: BLE001 - a read-only home or a pint without the cache
         return pint.UnitRegistry()
+
+
+def pint_cache_folder() -> Path:
+    """The disk cache of this pint installation's definitions: omnibench's cache folder /
+    pint / a key of pint's version and location."""
+    home = Path(pint.__file__).resolve().parent
+    key = hashlib.sha256(f"{pint.__version__}\0{home}".encode()).hexdigest()[:16]
+    return cache_root() / "pint" / key
 
 
 def parse_quantity(text: str) -> tuple[float, str | None]:
