@@ -31,7 +31,7 @@ residual has structure) from mis-sizing the intervals of parameters other groups
 Unmodelled structure therefore widens the intervals instead of hiding. Standard errors, 95 %
 intervals from Student's t with dof degrees of freedom, the correlation matrix.
 
-Identifiability (design.md §3): the weighted Jacobian of the requested parameters, columns
+Identifiability (docs/fit.md, "Identifiability verdicts"): the weighted Jacobian of the requested parameters, columns
 scaled to unit length, is decomposed (SVD). Its rank and condition number are reported. A
 singular value below RANK_TOL x the largest is a combination the data cannot see: the
 parameters that carry it are not identifiable, are held at their robot-file values and are
