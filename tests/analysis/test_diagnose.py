@@ -278,3 +278,13 @@ def test_jacobians_skip_only_the_groups_a_parameter_does_not_move(omnibot):
     skipped = problem.predict_steps(stencil, free)
     full = engine.Problem(obs, obs.procedures()).predict(stencil)
     assert np.array_equal(skipped, full, equal_nan=True)
+
+
+def test_the_candidate_eta_is_the_mean_fit_time_times_the_fits_left():
+    """diagnose's 'fitting X (candidate k of n, about m:ss CPU left for them)': nothing before the
+    first fit has been timed; then the mean CPU time of the fits so far times those left."""
+    from omnibench.analysis.diagnosis.core import _eta
+
+    assert _eta([], 3) == ""
+    assert _eta([60.0, 120.0], 2) == ", about 3:00 CPU left for them"
+    assert _eta([60.0], 0) == ""

@@ -155,3 +155,24 @@ def test_loro_predicts_a_run_with_assumed_timing_under_each_documented_timing(ro
         assert e.profiled("declared")[:2] == min((e.nrmse["declared"], e.assumed_sketch),
                                                  (other, "arduino/ardu.ino.ino"))
         assert 0 < e.nrmse["declared"] < 1 and 0 < other < 1 and abs(other - e.nrmse["declared"]) > 0.01
+
+
+def test_each_fold_after_the_first_says_how_much_cpu_is_left(monkeypatch):
+    """The LORO progress line of a fold names it (k of n) and, from the second on, the CPU time
+    the remaining folds will take at the mean so far; the first cannot know."""
+    import pandas as pd
+
+    from omnibench.analysis import baseline, heldout_runs
+
+    runs = ["r1", "r2", "r3"]
+    obs = SimpleNamespace(run_ids=runs, sweep=pd.DataFrame({"run": []}), runs={r: {"mode": "upside_down"} for r in runs},
+                          select=lambda runs: None)
+    monkeypatch.setattr(heldout_runs, "fit_physics", lambda model, train, max_nfev: None)
+    monkeypatch.setattr(heldout_runs, "run_error", lambda robot, obs, run: (0.1, None))
+    monkeypatch.setattr(baseline, "traces", lambda obs, runs: [])
+    lines: list[str] = []
+    errs = heldout_runs.leave_one_run_out({"declared": heldout_runs.PhysicsModel(None)}, obs, baselines=False,
+                                          progress=lines.append)
+    assert [e.run for e in errs] == runs
+    assert "(held-out run 1 of 3)" in lines[0] and "left" not in lines[0]
+    assert all("CPU left" in line and f"held-out run {k + 2} of 3" in line for k, line in enumerate(lines[1:])), lines

@@ -127,6 +127,8 @@ class Problem:
         self.blind: dict[str, set[tuple]] = {}
         self._unchanged: dict[tuple[str, tuple], set[str] | None] = {}  # points seen unchanged; None: moved
         self._group_idx = self.pred.group_entries()
+        #: per noise group: its used entries (mask) and their count, for `rss` (called per evaluation)
+        self._masks = {g: (m, int(m.sum())) for g in self.groups for m in [self.used & (self.group == g)]}
 
     def __len__(self) -> int:
         return len(self.y)
@@ -168,11 +170,7 @@ class Problem:
     def rss(self, f: np.ndarray) -> dict[str, tuple[float, int]]:
         """Per group: (sum of squared sigma-weighted residuals, count)."""
         z = (self.y - f) / self.sigma
-        out = {}
-        for g in self.groups:
-            m = self.used & (self.group == g)
-            out[g] = (float(np.sum(z[m] ** 2)), int(m.sum()))
-        return out
+        return {g: (float(np.sum(z[m] ** 2)), n) for g, (m, n) in self._masks.items()}
 
     def deviance(self, f: np.ndarray) -> float:
         """Profile deviance: sum_g (n_g - 1) log(s_g^2) + RSS_g / s_g^2 with s_g the profiled
