@@ -41,14 +41,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+from at_ref import results_at  # benchmarks/at_ref.py (scripts run from this folder)
 
 HERE = Path(__file__).resolve()
 ROOT = HERE.parents[1]
@@ -254,21 +253,9 @@ def _without(argv: list[str], option: str) -> list[str]:
 
 
 def run_at_ref(ref: str, argv: list[str]) -> list[dict]:
-    """This script's results with git ref `ref`'s omnibench (a temporary detached worktree on
-    PYTHONPATH; the same arguments without --before and --json)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        tree = Path(tmp) / "tree"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True,
-                       capture_output=True)
-        try:
-            out = Path(tmp) / "before.json"
-            args = _without(_without(argv, "--before"), "--json") + ["--json", str(out)]
-            env = {**os.environ, "PYTHONPATH": str(tree)}
-            subprocess.run([sys.executable, str(HERE), *args], env=env, check=True, stdout=subprocess.DEVNULL)
-            return json.loads(out.read_text())["runs"]
-        finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False,
-                           capture_output=True)
+    """This script's results with git ref `ref`'s omnibench (the same arguments without --before
+    and --json)."""
+    return results_at(ref, HERE, _without(_without(argv, "--before"), "--json"))["runs"]
 
 
 def side_by_side(before: list[dict], after: list[dict], ref: str) -> str:

@@ -29,13 +29,13 @@ from __future__ import annotations
 import argparse
 import glob
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from at_ref import results_at  # benchmarks/at_ref.py (scripts run from this folder)
 
 HERE = Path(__file__).resolve()
 ROOT = HERE.parents[1]
@@ -111,20 +111,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def before_results(ref: str, data: Path) -> dict[str, Any]:
-    """This script's JSON results with git ref `ref`'s omnibench (temporary detached worktree)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        tree = Path(tmp) / "tree"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True,
-                       capture_output=True)
-        try:
-            out = Path(tmp) / "before.json"
-            env = {**os.environ, "PYTHONPATH": str(tree)}
-            subprocess.run([sys.executable, str(HERE), "--data", str(data), "--json", str(out)], env=env, check=True,
-                           stdout=subprocess.DEVNULL)
-            return json.loads(out.read_text())
-        finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False,
-                           capture_output=True)
+    """This script's JSON results with git ref `ref`'s omnibench."""
+    return results_at(ref, HERE, ["--data", str(data)])
 
 
 def side_by_side(before: dict[str, Any], after: dict[str, Any], ref: str) -> str:
