@@ -3,7 +3,7 @@
 Above the bench (which runs one procedure) and the analysis (fit, validate, diagnose, design),
 calling both as functions; this package never imports the command line.
 
-- `analysis_commands`: what `omnibench fit`, `validate-energy` and `diagnose` do, as functions
+- `analysis_commands`: what `omnibench fit` and `validate-energy` do, as functions; `diagnose_command`: what `omnibench diagnose` does
   (read the runs, fit/validate/diagnose, write the model file and plots), called by those
   commands and by the campaign's stages.
 - `stages`: the campaign's analysis stages (fit, validate-energy, diagnose in turn, each one's

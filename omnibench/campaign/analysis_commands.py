@@ -1,6 +1,7 @@
-"""fit, validate-energy and diagnose on run directories, as functions: what `omnibench fit`,
-`omnibench validate-energy` and `omnibench diagnose` do (read and check the runs, fit, validate or
-diagnose, write the model file and the figures), and what the campaign's analysis stages call.
+"""fit and validate-energy on run directories, as functions: what `omnibench fit` and
+`omnibench validate-energy` do (read and check the runs, fit or validate, write the model file and
+the figures), and what the campaign's analysis stages call; diagnose is its own module
+(`diagnose_command.py`: `omnibench fit` does not import the diagnosis, ~1 s of CPU).
 
 In the campaign layer because they orchestrate the analysis (the fit, the diagnosis in its own
 package, the model file, the plots) from above. Each returns what it did, with `to_json()` (the
@@ -19,16 +20,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omnibench.analysis.diagnosis import Diagnosis, diagnose
-from omnibench.analysis.diagnosis.loro import HeldOutRuns, heldout_runs, trimmed
-from omnibench.analysis.diagnosis.report import write_model as write_diagnosed_model
-from omnibench.analysis.diagnosis.report import write_plots as write_diagnosis_plots
 from omnibench.analysis.fitting import FitResult, fit, fit_per_wheel
 from omnibench.analysis.model_file import load_model, write_model
 from omnibench.analysis.observations import PROCEDURES, Observations
 from omnibench.analysis.validate import EnergyValidation, validate_energy
 from omnibench.errors import UserError
-from omnibench.model import default_robot, load_robot
+from omnibench.model import default_robot
 from omnibench.model.robot import Robot
 from omnibench.progress import working
 from omnibench.runs.check import check_out_folder, check_output, checked_runs
@@ -170,72 +167,3 @@ def validate_runs(runs: Sequence[Path], *, model: Path, plots: Path | None = Non
 
         fig = plot_energy(val, plots)
     return ValidationDone(val, model, fig)
-
-
-# --------------------------------------------------------------------------- diagnose
-def _diagnosis_number(x: object) -> object:
-    """json.dumps `default` of diagnose's JSON: numpy scalars as numbers (non-finite as None),
-    anything else as its text."""
-    try:
-        v = float(x)  # type: ignore[arg-type]  # numpy scalars
-    except (TypeError, ValueError):
-        return str(x)
-    return v if math.isfinite(v) else None
-
-
-@dataclass
-class DiagnosisDone:
-    """What `omnibench diagnose` did: the diagnosis, the leave-one-run-out check when asked for,
-    the files written ({"model": path, "plots": [paths]})."""
-
-    diagnosis: Diagnosis
-    held: HeldOutRuns | None
-    written: dict[str, Any]
-
-    def to_json(self) -> dict[str, Any]:
-        return {**self.diagnosis.to_json(), "written": self.written,
-                "leave_one_run_out": self.held.to_json() if self.held else None}
-
-    def json_text(self) -> str:
-        return json.dumps(self.to_json(), indent=2, default=_diagnosis_number)
-
-
-def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None, plots: Path | None = None,
-                  candidates: list[str] | None = None, procedures: list[str] | None = None, alpha: float = 1e-3,
-                  max_effects: int = 3, seed: int = 0, loro: bool = False,
-                  progress: Lines = to_stderr) -> DiagnosisDone:
-    """Fit the declared model `model` to the runs, find residual structure, add the library
-    effects that earn their parameters on held-out run steps; write the extended model to `out`
-    and the before/after plots to `plots` when given (docs/diagnose.md).
-
-    candidates: only these effects (default: the library); procedures: only these observation
-    tables; alpha: family-wise significance level; loro: also leave-one-run-out (an addition that
-    costs a run is a trade-off, left out of the written model). progress: lines as it goes."""
-    good = tuple(checked_runs(runs))
-    if out is not None:
-        check_output(out, good)
-    if plots is not None:
-        check_out_folder(plots, "--plots")
-    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
-    fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
-    obs = Observations.from_runs(good, robot=robot)
-    if not obs.procedures():
-        raise UserError("the runs hold no measurements diagnose can use (sweep, forward, lateral, energy, step_response)")
-
-    def say(msg: str) -> None:
-        progress(f"diagnose: {msg}")
-
-    diag = diagnose(robot, obs, candidates=candidates, procedures=procedures, alpha=alpha, max_effects=max_effects,
-                    seed=seed, progress=say, fit_info=fit_info)
-    held = None
-    if loro:
-        if len(obs.run_ids) < 2:
-            raise UserError("--loro needs at least two runs (each is predicted from the others)")
-        held = heldout_runs(diag, obs, progress=say)
-    written: dict[str, Any] = {}
-    if out is not None:
-        kept = trimmed(diag, held, obs) if held is not None and held.tradeoffs else diag
-        written["model"] = str(write_diagnosed_model(kept, out))
-    if plots is not None:
-        written["plots"] = [str(p) for p in write_diagnosis_plots(diag, plots)]
-    return DiagnosisDone(diag, held, written)

@@ -1,5 +1,5 @@
 """The campaign's analysis stages: fit, validate-energy and diagnose on the campaign's runs, each
-called as a function (omnibench.campaign.analysis_commands, what the commands of the same names
+called as a function (omnibench.campaign.analysis_commands and diagnose_command, what the commands of the same names
 do), with its record kept for the report: the equivalent command, its exit code, its JSON result
 (`result`, and `stdout` as the command prints it) and its progress lines (`stderr`).
 
@@ -17,7 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from omnibench.campaign.analysis_commands import diagnose_runs, fit_runs, validate_runs
+from omnibench.campaign.analysis_commands import fit_runs, validate_runs
+from omnibench.campaign.diagnose_command import diagnose_runs
 from omnibench.campaign.run import ANALYSIS
 from omnibench.errors import UserError
 from omnibench.model.robot import DEFAULT_ROBOT_FILE

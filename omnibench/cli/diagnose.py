@@ -65,7 +65,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
         raise UserError(f"--alpha {alpha}: give a significance level between 0 and 0.5, e.g. 0.001")
     if max_effects < 0:
         raise UserError(f"--max-effects {max_effects}: must be 0 or more")
-    from omnibench.campaign.analysis_commands import diagnose_runs
+    from omnibench.campaign.diagnose_command import diagnose_runs
 
     done = diagnose_runs(runs, model=model, out=out, plots=plots, candidates=parse_candidates(candidates),
                          procedures=_procedures(procedures), alpha=alpha, max_effects=max_effects, seed=seed,
