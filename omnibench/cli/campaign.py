@@ -14,6 +14,10 @@ from omnibench.cli.params import FINITE, NonEmptyPath
 from omnibench.cli.plan import design_options
 from omnibench.errors import UserError
 
+#: Exit code of a campaign whose runs and report were written but an analysis stage (fit,
+#: validate-energy, diagnose) failed: 2 is bad input, 3 a board fault, 130 Ctrl-C.
+ANALYSIS_FAILED = 4
+
 
 @click.command("campaign")
 @click.option("--port", metavar="URL", help="Serial device, or sim://... for the simulated robot.")
@@ -107,3 +111,8 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
         click.echo(json.dumps(json_ready(res), indent=2, default=str))
     elif level < 0 and res.get("report"):  # -q: the one line a script needs
         click.echo(str(res["report"]))
+    failed = [name for name, st in (res.get("analysis") or {}).items()
+              if isinstance(st, dict) and st.get("status") == "failed"]
+    if failed:  # the runs and the report are written; a script must still see that the answer is missing
+        raise UserError(f"analysis stage failed: {', '.join(failed)} (runs and report kept in {out}; the stage's "
+                        "own message is in report.md, Analysis)", exit_code=ANALYSIS_FAILED)

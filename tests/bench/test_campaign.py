@@ -170,3 +170,29 @@ def test_quiet_campaign_prints_only_the_report_path(capsys, tmp_path):
     captured = capsys.readouterr()
     assert captured.out == f"{out / 'report.md'}\n" and captured.err == ""
     assert (out / "report.md").is_file()
+
+
+def test_a_failed_analysis_stage_keeps_the_runs_and_report_and_exits_4(capsys, tmp_path, monkeypatch):
+    """The fit fails (here it is made to); the campaign still writes every run and its report,
+    which names the failed stage, and exits 4 in one line, so that a script sees the answer is
+    missing (it exited 0 before)."""
+    from omnibench.campaign import stages
+    from omnibench.errors import UserError
+
+    def failing_fit(*args, **kwargs):
+        raise UserError("no observations to fit (need sweep, forward or lateral runs)")
+
+    monkeypatch.setattr(stages, "fit_runs", failing_fit)
+    out = tmp_path / "c"
+    code = 0
+    try:
+        main(["campaign", "--port", "sim://?seed=8", "--out", str(out), "--procedures",
+              str(HERE / "procedures" / "campaign"), "--analysis", "fit"])
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert code == 4, err
+    assert "analysis stage failed: fit" in err.strip().splitlines()[-1]
+    assert "**fit: failed**" in (out / "report.md").read_text()
+    assert {read_run(d).status for d in (out / "runs").iterdir()} == {"complete"}
+    assert len(list((out / "runs").iterdir())) == 4
