@@ -13,7 +13,6 @@ the `progress` function given (the commands and the campaign write them on stder
 from __future__ import annotations
 
 import json
-import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -29,6 +28,7 @@ from omnibench.model import default_robot
 from omnibench.model.robot import Robot
 from omnibench.progress import working
 from omnibench.runs.check import check_out_folder, check_output, checked_runs
+from omnibench.runs.store import json_ready
 
 Lines = Callable[[str], None]
 
@@ -42,22 +42,8 @@ def _silent(line: str) -> None:
     """Drops the line (the `--json` output has no prose)."""
 
 
-def jsonable(obj: Any) -> Any:
-    """`obj` with numpy scalars as Python numbers, keys as strings and non-finite floats as None
-    (JSON has no NaN)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if hasattr(obj, "item"):
-        return jsonable(obj.item())
-    return obj
-
-
 def _json_text(data: Any) -> str:
-    return json.dumps(jsonable(data), indent=2, allow_nan=False)
+    return json.dumps(json_ready(data), indent=2, allow_nan=False)
 
 
 def model_robot(path: Path | None) -> tuple[Robot, dict[str, Any]]:

@@ -16,9 +16,9 @@ from omnibench.runs.check import check_out_folder, checked_runs
 
 
 def _echo_json(obj: Any) -> None:
-    from omnibench.campaign.analysis_commands import jsonable
+    from omnibench.runs.store import json_ready
 
-    click.echo(json.dumps(jsonable(obj), indent=2, allow_nan=False))
+    click.echo(json.dumps(json_ready(obj), indent=2, allow_nan=False))
 
 
 def _free(text: str | None) -> list[str] | None:
