@@ -18,8 +18,8 @@ stage (cumulative CPU time of the functions that do each part; the stages nest, 
 are part of settle passes, so the rows do not add up):
 
     simulations      simulator.simulate_batch (every model prediction)
-    Jacobians        the finite-difference Jacobians of the fits (fitting._Problem.jacobian,
-                     engine.fit_model's jac and its final Jacobian)
+    Jacobians        the finite-difference Jacobians of the fits (least_squares'
+                     WeightedResiduals.jacobian, engine.fit_model's jac and its final Jacobian)
     fitting.fit      the user's fit (`omnibench fit`; diagnose's declared model when its file
                      is not the fit of these runs)
     model fits       engine.fit_model (its settle passes: weighted fits until the scales settle)
@@ -61,7 +61,7 @@ DEFAULT_DATA = next((p / "shared" / "data" / "omnibot-tfm" for p in HERE.parents
 #: stage -> (module path fragment, function name) pairs whose cumulative time is the stage's
 STAGES: dict[str, list[tuple[str, str]]] = {
     "simulations": [("model/simulator.py", "simulate_batch")],
-    "Jacobians": [("analysis/fitting.py", "jacobian"), ("diagnosis/engine.py", "jac"),
+    "Jacobians": [("analysis/least_squares.py", "jacobian"), ("diagnosis/engine.py", "jac"),
                   ("diagnosis/engine.py", "_final_jacobian")],
     "fitting.fit": [("analysis/fitting.py", "fit")],
     "model fits": [("diagnosis/engine.py", "fit_model")],

@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import MARGIN, plan, planning_names, target_se
     from omnibench.analysis.design.space import Costs
-    from omnibench.analysis.fitting import fit, param_value
+    from omnibench.analysis.fitting import fit
+    from omnibench.analysis.least_squares import param_value
     from omnibench.analysis.simcampaign import simulated_observations
     from omnibench.campaign.run import procedure_files
     from omnibench.model import default_robot

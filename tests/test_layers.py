@@ -81,11 +81,7 @@ def _imports(name: str, path: Path) -> list[tuple[str, int]]:
 
 
 #: Private names (`_x`) imported from another module, each with its reason. Add none.
-PRIVATE_EXCEPTIONS: dict[tuple[str, str], str] = {
-    # design's information uses the fit's residual problem; issue 34 rewrites fitting.py (one
-    # fitting engine for fit, diagnose and design is issue 35's next step)
-    ("omnibench.analysis.design.information", "omnibench.analysis.fitting._Problem"): "issue 34",
-}
+PRIVATE_EXCEPTIONS: dict[tuple[str, str], str] = {}
 
 
 def _unit(module: str) -> str:

@@ -18,8 +18,8 @@ from omnibench.analysis.fitting import (
     fit_per_wheel,
     predict_observations,
     sweep_linear_estimate,
-    with_params,
 )
+from omnibench.analysis.least_squares import with_params
 from omnibench.analysis.observations import Observations
 
 __all__ = ["FitResult", "Observations", "Verdict", "default_free", "error_by_procedure", "fit", "fit_per_wheel",

@@ -12,12 +12,15 @@ Public API (used by `omnibench fit` and by the diagnosis)::
 
 Parameter names are the paper's symbols (`a, b, c, a_r, b_r, c_r, C_r`, motor constants
 `k_t, k_e, R_a`, also `eta, I_0`) and `<effect>.<param>` for a parameter of an effect the robot
-declares in `robot.effects` (e.g. `stribeck_friction.b_s`).
+declares in `robot.effects` (e.g. `stribeck_friction.b_s`); their values, bounds, scales and
+units are the least-squares engine's (omnibench.analysis.least_squares), as are the weighted
+residuals and their Jacobian (`weighted_residuals`) that diagnose and the planner share.
 
 Method. Every observation is predicted through the simulator (`Predictor`), so any declared
 term takes part. The weighted residuals r_k = (y_k - f_k(theta)) / sigma_k are minimised with
-scipy's trust-region least squares; the Jacobian comes from forward differences, all perturbed
-parameter sets simulated in one `simulate_batch` call. sigma_k is the observation's own
+scipy's trust-region least squares; the Jacobian comes from forward differences (a step of
+least_squares.FD_STEP = 1e-5 of each scale, one physics step for a command latency), all
+perturbed parameter sets simulated in one `simulate_batch` call. sigma_k is the observation's own
 standard error (encoder rounding through the speed estimator at that speed and window,
 omnibench.analysis.quantisation; current noise over the
 averaged samples, the operator's tape noise); where a run does not give one (the 2019 sweep),
@@ -53,13 +56,18 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, special
 
+from omnibench.analysis.least_squares import (
+    WeightedResiduals,
+    param_bounds,
+    param_unit,
+    param_value,
+    weighted_residuals,
+    with_params,
+)
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
 from omnibench.errors import UserError
 
-CORE = ("a", "b", "c", "a_r", "b_r", "c_r", "C_r")
-MOTOR = ("k_t", "k_e", "R_a", "eta", "I_0", "I_w")
-FITTABLE_FIELDS = CORE + MOTOR + ("V_batt",)  # V_batt: a run's supply where it was not logged (sessions.py)
 #: Singular values below this fraction of the largest are directions the data cannot see.
 RANK_TOL = 1e-6
 #: A free parameter and a fixed constant are "not separable" when adding the constant's column
@@ -76,11 +84,6 @@ MIN_SWEEP_SPEED = 0.3
 #: two wheels; docs/robot-file.md). (Above it the wheel sign, tanh, is Coulomb's to 4e-9.)
 MIN_GROUND_SPEED_WIDTHS = 10.0
 #: Typical magnitudes (SI) used to scale parameters and finite-difference steps.
-TYPICAL = {"a": 0.01, "b": 0.5, "c": 0.01, "a_r": 2.0, "b_r": 1.0, "c_r": 0.01, "C_r": 0.02,
-           "k_t": 1.5, "k_e": 1.5, "R_a": 2.0, "eta": 0.6, "I_0": 0.1, "I_w": 0.003, "V_batt": 24.0}
-UNITS = {"a": "N m s/rad", "b": "N m", "c": "1/N", "a_r": "N s/m", "b_r": "N", "c_r": "1/N", "C_r": "1",
-         "k_t": "N m/A", "k_e": "V s/rad", "R_a": "ohm", "eta": "1", "I_0": "A", "I_w": "kg m^2", "V_batt": "V"}
-FD_STEP = 1e-5  # relative (to the parameter's scale) forward-difference step
 DEFAULT_PROCEDURES = ("sweep", "forward", "lateral")
 
 
@@ -108,84 +111,6 @@ def _noise_reweighting(groups: np.ndarray, used: np.ndarray, r: np.ndarray, J: n
         if dof_g >= REWEIGHT_MIN_DOF:
             fac[groups == g] = math.sqrt(max(float(np.sum(r[m] ** 2)) / dof_g, 1e-6))
     return fac if np.any(np.abs(fac - 1.0) > 0.05) else None
-
-def _effect_param(robot: Any, name: str) -> tuple[str, str, Any]:
-    eff, _, p = name.partition(".")
-    from omnibench.model.terms import get_term
-
-    if eff not in robot.effects:
-        raise UserError(f"free parameter {name}: the robot declares no effect {eff!r} "
-                        f"(declared: {', '.join(robot.effects) or 'none'})")
-    try:
-        term = get_term(eff)
-    except KeyError as exc:
-        raise UserError(str(exc)) from None
-    spec = next((q for q in term.params if q.name == p), None)
-    if spec is None:
-        raise UserError(f"free parameter {name}: {eff} has no parameter {p!r} ({', '.join(term.param_names)})")
-    return eff, p, spec
-
-
-def param_value(robot: Any, name: str) -> float:
-    """Current value (SI) of a parameter name on `robot`."""
-    if "." in name:
-        eff, p, spec = _effect_param(robot, name)
-        return float(robot.effects[eff].get(p, spec.default))
-    if name not in FITTABLE_FIELDS:
-        raise UserError(f"cannot fit {name!r}: choose from {', '.join(FITTABLE_FIELDS)} or <effect>.<param>")
-    return float(getattr(robot, name))
-
-
-def param_bounds(robot: Any, name: str) -> tuple[float, float]:
-    """Physical bounds (SI) of a parameter."""
-    if "." in name:
-        _, _, spec = _effect_param(robot, name)
-        return float(spec.lower), float(spec.upper)
-    if name in CORE:  # the paper's terms' physical ranges (omnibench/model/friction.py)
-        from omnibench.model.terms import all_terms
-
-        spec = {p.name: p for t in all_terms() if t.core for p in t.params}[name]
-        return float(spec.lower), float(spec.upper)
-    if name == "I_0":
-        return 0.0, math.inf
-    if name == "eta":
-        return 1e-3, 1.0
-    return 1e-6, math.inf
-
-
-def param_scale(robot: Any, name: str) -> float:
-    """Typical magnitude used to scale a parameter (its value, else a documented typical size)."""
-    v = abs(param_value(robot, name))
-    if "." in name:
-        _, _, spec = _effect_param(robot, name)
-        span = spec.upper - spec.lower
-        # a parameter whose natural value is 0 (an offset) is scaled by its range, not by 0
-        return max(v, abs(spec.default), 0.01 * span if math.isfinite(span) else 0.0, 1e-6)
-    return max(v, TYPICAL.get(name, 1.0) * 0.1)
-
-
-def param_unit(robot: Any, name: str) -> str:
-    if "." in name:
-        return _effect_param(robot, name)[2].unit
-    return UNITS.get(name, "")
-
-
-def with_params(robot: Any, values: Mapping[str, float]) -> Any:
-    """A copy of `robot` with parameters set (fields and `<effect>.<param>`)."""
-    fields: dict[str, float] = {}
-    effects = None
-    for name, v in values.items():
-        if "." in name:
-            eff, p = name.split(".", 1)
-            if effects is None:
-                effects = {k: dict(x) for k, x in robot.effects.items()}
-            effects.setdefault(eff, {})[p] = float(v)
-        else:
-            fields[name] = float(v)
-    if effects is not None:
-        fields["effects"] = effects  # type: ignore[assignment]
-    return robot.replace(**fields) if fields else robot
-
 
 def default_free(robot: Any, obs: Observations, procedures: Sequence[str] | None = None) -> list[str]:
     """The parameters each procedure present is designed to measure: sweep -> a, b, c (and k_e,
@@ -394,75 +319,6 @@ def creeping_ground_speeds(t: pd.DataFrame, speed: np.ndarray, robot: Any) -> np
         return ground_w & (np.abs(speed) < MIN_GROUND_SPEED_WIDTHS * robot.sign_width_phi)
 
 
-class _Problem:
-    """Weighted residuals and their finite-difference Jacobian in scaled parameters."""
-
-    def __init__(self, robot: Any, pred: Predictor, free: list[str], used: np.ndarray, sigma: np.ndarray) -> None:
-        self.robot, self.pred, self.free = robot, pred, free
-        self.used, self.sigma = used, sigma
-        self.scale = np.array([param_scale(robot, p) for p in free])
-        self.substeps = max(1, pred.substeps([robot])) if len(pred) else 1
-        self.nfev = 0
-        self._cache: tuple[np.ndarray, np.ndarray] | None = None
-        self._jcache: tuple[np.ndarray, np.ndarray] | None = None
-        self._zero_blocks: dict[tuple, set[int]] | None = None
-
-    def robot_at(self, x: np.ndarray) -> Any:
-        return with_params(self.robot, {p: float(v) for p, v in zip(self.free, x * self.scale)})
-
-    def _sub(self, robots: Sequence[Any]) -> int:
-        return max(self.substeps, self.pred.substeps(robots[:1]))
-
-    def predict(self, x_list: Sequence[np.ndarray]) -> np.ndarray:
-        robots = [self.robot_at(x) for x in x_list]
-        self.nfev += len(robots)
-        return self.pred.predict(robots, substeps=self._sub(robots))
-
-    def residual(self, x: np.ndarray) -> np.ndarray:
-        f = self.predict([x])[0]
-        self._cache = (x.copy(), f)
-        return self.weighted(f)
-
-    def weighted(self, f: np.ndarray) -> np.ndarray:
-        return ((self.pred.measured - f) / self.sigma)[self.used]
-
-    def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """d(weighted residual)/dx (n_used, n_free), forward differences in one batch (cached per x)."""
-        if self._jcache is not None and np.array_equal(self._jcache[0], x):
-            return self._jcache[1]
-        xs = [x]
-        for j in range(len(x)):
-            xp = x.copy()
-            xp[j] += FD_STEP
-            xs.append(xp)
-        robots = [self.robot_at(xi) for xi in xs]
-        self.nfev += len(robots)
-        F = self.pred.predict(robots, substeps=self._sub(robots), same_as_first=self._zero_blocks)
-        if self._zero_blocks is None:
-            # (group, parameter) pairs whose predictions did not move at all: the group does not
-            # depend on the parameter (e.g. roller friction in straight runs, rolling resistance
-            # upside down); later Jacobians skip simulating them
-            blocks: dict[tuple, set[int]] = {}
-            for key, idx in self.pred.group_entries().items():
-                blocks[key] = {1 + j for j in range(len(x)) if np.array_equal(F[1 + j, idx], F[0, idx])}
-            self._zero_blocks = blocks
-        self._cache = (x.copy(), F[0])
-        cols = [(F[1 + j] - F[0]) / FD_STEP for j in range(len(x))]
-        J = -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None]
-        self._jcache = (x.copy(), J)
-        return J
-
-    def extra_columns(self, x: np.ndarray, names: Sequence[str]) -> np.ndarray:
-        """Jacobian columns of parameters held fixed (per unit of their scale), at x."""
-        base = self.robot_at(x)
-        robots = [base] + [with_params(base, {n: param_value(self.robot, n) + FD_STEP * param_scale(self.robot, n)})
-                           for n in names]
-        self.nfev += len(robots)
-        F = self.pred.predict(robots, substeps=self._sub(robots))
-        cols = [(F[1 + k] - F[0]) / FD_STEP for k in range(len(names))]
-        return -np.stack(cols, axis=1)[self.used] / self.sigma[self.used][:, None]
-
-
 def _scaled_svd(J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     norms = np.linalg.norm(J, axis=0)
     norms = np.where(norms > 0, norms, 1.0)
@@ -514,7 +370,7 @@ STAGES = (("sweep", {"a", "b", "c", "k_t", "k_e", "R_a", "eta"}), ("forward", {"
           ("lateral", {"a_r", "b_r", "c_r"}))
 
 
-def _solve(prob: "_Problem", names: list[str], robot: Any, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
+def _solve(prob: WeightedResiduals, names: list[str], robot: Any, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounded trust-region least squares from x0; returns (x, weighted Jacobian at x)."""
     lo = np.array([param_bounds(robot, p)[0] for p in names]) / prob.scale
     hi = np.array([param_bounds(robot, p)[1] for p in names]) / prob.scale
@@ -571,12 +427,12 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     groups, sigma, unknown = _stated_noise(pred, used, notes)
     say = progress or (lambda msg: None)
     say(f"identifiability of {len(free)} parameters from {int(used.sum())} observations")
-    ident = _identify(_Problem(start, pred, free, used, sigma), robot, free, procs)
+    ident = _identify(weighted_residuals(start, pred, free, used, sigma), robot, free, procs)
     current = _warm_start(robot, start, obs, pred, procs, ident.active, ident.fixed, used, sigma, max_nfev, say)
     prob, xa, J = _joint_fit(robot, current, pred, ident.active, used, sigma, groups, unknown, max_nfev, say)
     xa, J, sigma_stated, stated_factor = _reweighted(prob, robot, ident.active, groups, used, xa, J, max_nfev, say)
     fitted_robot = prob.robot_at(xa)
-    f = prob._cache[1] if prob._cache is not None and np.array_equal(prob._cache[0], xa) else prob.predict([xa])[0]
+    f = prob.prediction_at(xa)
     cv = _covariance(prob, pred, f, J, groups, used, sigma_stated, len(ident.active))
     values = {p: param_value(fitted_robot, p) for p in free}
     se = {p: float("nan") for p in free}
@@ -683,7 +539,7 @@ class _Identified:
     cond: float
 
 
-def _identify(prob: _Problem, robot: Any, free: list[str], procs: Sequence[str]) -> _Identified:
+def _identify(prob: WeightedResiduals, robot: Any, free: list[str], procs: Sequence[str]) -> _Identified:
     """Identifiability at the start point: parameters without any column are not identifiable;
     each invisible combination holds its parameter of lowest `_fix_priority` fixed."""
     J0 = prob.jacobian(np.array([param_value(prob.robot, p) for p in free]) / prob.scale)
@@ -733,7 +589,7 @@ def _warm_start(robot: Any, start: Any, obs: Observations, pred: Predictor, proc
                 continue
             say(f"warm start on the {proc} runs: {', '.join(sub)}")
             mask = (pred.table["procedure"] == proc).to_numpy()
-            sp = _Problem(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
+            sp = weighted_residuals(current, Predictor(obs, [proc]), sub, used[mask], sigma[mask])
             xs, _ = _solve(sp, sub, robot, np.array([param_value(current, p) for p in sub]) / sp.scale, max_nfev)
             current = sp.robot_at(xs)
     return current
@@ -741,11 +597,11 @@ def _warm_start(robot: Any, start: Any, obs: Observations, pred: Predictor, proc
 
 def _joint_fit(robot: Any, current: Any, pred: Predictor, active: list[str], used: np.ndarray, sigma: np.ndarray,
                groups: np.ndarray, unknown: np.ndarray, max_nfev: int,
-               say: Callable[[str], None]) -> tuple[_Problem, np.ndarray, np.ndarray]:
+               say: Callable[[str], None]) -> tuple[WeightedResiduals, np.ndarray, np.ndarray]:
     """Every active parameter fitted to every procedure from `current`: (problem, x, weighted
     Jacobian at x). Twice when some sigmas were unknown: the second pass with each such group's
     residual RMS as its sigma (`sigma` is updated in place)."""
-    prob = _Problem(current, pred, active, used, sigma)
+    prob = weighted_residuals(current, pred, active, used, sigma)
     xa = np.array([param_value(current, p) for p in active]) / prob.scale
     passes = 2 if unknown[used].any() else 1
     say(f"joint fit of {len(active)} parameters ({', '.join(active)})")
@@ -759,11 +615,10 @@ def _joint_fit(robot: Any, current: Any, pred: Predictor, active: list[str], use
                 rms = float(np.sqrt(np.mean(res[m] ** 2))) if m.any() else 1.0
                 sigma[(groups == g) & unknown] = max(rms, 1e-12)
             prob.sigma = sigma
-            prob._jcache = None
     return prob, xa, J
 
 
-def _reweighted(prob: _Problem, robot: Any, active: list[str], groups: np.ndarray, used: np.ndarray,
+def _reweighted(prob: WeightedResiduals, robot: Any, active: list[str], groups: np.ndarray, used: np.ndarray,
                 xa: np.ndarray, J: np.ndarray, max_nfev: int,
                 say: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
     """The joint fit again with each large group weighted by its own noise, when that moves a
@@ -781,8 +636,6 @@ def _reweighted(prob: _Problem, robot: Any, active: list[str], groups: np.ndarra
         say("joint fit again, each group weighted by its own noise")
         stated_factor = {str(g): float(reweight[groups == g][0]) ** 2 for g in np.unique(groups)}
         prob.sigma = prob.sigma * reweight
-        prob._jcache = None
-        prob._cache = None
         xa, J = _solve(prob, active, robot, xa, max_nfev)
     return xa, J, sigma_stated, stated_factor
 
@@ -804,7 +657,7 @@ class _Covariance:
     structure: dict[str, dict[str, Any]]
 
 
-def _covariance(prob: _Problem, pred: Predictor, f: np.ndarray, J: np.ndarray, groups: np.ndarray,
+def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.ndarray, groups: np.ndarray,
                 used: np.ndarray, sigma_stated: np.ndarray, n_active: int) -> _Covariance:
     """chi^2, dof, the sandwich covariance (SI), standard errors, correlations and the 95 %
     t quantile. Per-group noise scale (Birge ratio of each procedure/signal group, with the
@@ -851,7 +704,7 @@ def _covariance(prob: _Problem, pred: Predictor, f: np.ndarray, J: np.ndarray, g
     return _Covariance(chi2, dof, chi2 / dof, cov, se_a, corr, tq, group_s2, group_dof, residuals, structure)
 
 
-def _confounded(prob: _Problem, robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str],
+def _confounded(prob: WeightedResiduals, robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str],
                 active: list[str], xa: np.ndarray, J: np.ndarray, verdicts: dict[str, Verdict]) -> list[dict[str, Any]]:
     """Conditional parameters: fitted ones the data cannot separate from a fixed constant (the
     sweep without current: k_e; forward runs without a sweep: c). Marks them in `verdicts` and
@@ -883,7 +736,7 @@ def _confounded(prob: _Problem, robot: Any, obs: Observations, procs: Sequence[s
     return confounded
 
 
-def _final_verdicts(robot: Any, prob: _Problem, active: list[str], values: Mapping[str, float],
+def _final_verdicts(robot: Any, prob: WeightedResiduals, active: list[str], values: Mapping[str, float],
                     se: Mapping[str, float], ci: Mapping[str, tuple[float, float]],
                     verdicts: dict[str, Verdict]) -> None:
     """'at bound' for a fitted value on a physical bound or at zero; 'identified' for the rest."""

@@ -588,7 +588,7 @@ def _finite(v: float) -> float | None:
 
 
 def _value(robot: Robot, p: str) -> float:
-    from omnibench.analysis.fitting import param_value
+    from omnibench.analysis.least_squares import param_value
 
     return param_value(robot, p)
 

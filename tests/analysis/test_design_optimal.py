@@ -81,7 +81,8 @@ def test_no_pair_of_a_plan_can_be_swapped_for_a_cheaper_one_that_still_meets_eve
     from omnibench.analysis.design.files import diagnostic_floor, space_from_files
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import MARGIN, plan, planning_names, target_se
-    from omnibench.analysis.fitting import fit, param_value
+    from omnibench.analysis.fitting import fit
+    from omnibench.analysis.least_squares import param_value
     from omnibench.analysis.simcampaign import simulated_observations
     from omnibench.campaign.run import procedure_files
 

@@ -266,7 +266,7 @@ def test_jacobians_skip_only_the_groups_a_parameter_does_not_move(omnibot):
 
     from omnibench.analysis.diagnosis import engine
     from omnibench.analysis.diagnosis.core import _base_free
-    from omnibench.analysis.fitting import param_scale, param_value, with_params
+    from omnibench.analysis.least_squares import param_scale, param_value, with_params
 
     obs = campaign(omnibot, CampaignSpec(("sweep", "forward")), {}, seed=3)
     problem = engine.Problem(obs, obs.procedures())

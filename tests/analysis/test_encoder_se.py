@@ -1,5 +1,5 @@
 """Standard errors that know the encoder's rounding (diagnosis/encoder_se.py) against Monte Carlo
-over the mounting phase, and the latency fit's difference step (engine.fd_steps)."""
+over the mounting phase, and the latency fit's difference step (least_squares.fd_steps)."""
 
 import math
 from types import SimpleNamespace
@@ -86,7 +86,7 @@ def test_periodic_revisits_widen_the_se_to_the_spread_of_the_fit():
 def test_a_latency_fit_steps_over_the_simulators_crossing_jumps(omnibot):
     """The model's prediction jumps each time a reversal's zero crossing moves to the next
     physics step; a latency differenced over microseconds stopped on such a jump (19.55 ms
-    +- 7 us for a world's 20 ms, seed 1004). Differenced over one physics step (engine.fd_steps)
+    +- 7 us for a world's 20 ms, seed 1004). Differenced over one physics step (least_squares.fd_steps)
     the fit reaches the truth within 3 SE from the same start."""
     from omnibench.analysis.diagnosis import engine
     from omnibench.analysis.diagnosis.campaign import REVEALING, campaign

@@ -2,11 +2,12 @@
 
 Each candidate is turned into the observation rows its runs would produce (the same tables
 the fit reads), predicted through the fit's own `Predictor` at the current parameter values,
-and differentiated by the fit's own forward differences (`fitting._Problem`): one source of
-truth for what an observation depends on. With J_k the weighted Jacobian of candidate k's
-entries (scaled parameters x = theta / scale), its information is M_k = J_k^T J_k / s2_g,
-where s2_g is the noise scale the fit found for that observation group (chi^2/dof, with its
-correlation inflation), so the predicted SE is the one the fit will report.
+and differentiated by the fit's own forward differences (`least_squares.weighted_residuals`,
+the engine fit and diagnose share): one source of truth for what an observation depends on.
+With J_k the weighted Jacobian of candidate k's entries (scaled parameters x = theta / scale),
+its information is M_k = J_k^T J_k / s2_g, where s2_g is the noise scale the fit found for that
+observation group (chi^2/dof, with its correlation inflation), so the predicted SE is the one
+the fit will report.
 
 Expected noise of an entry (before any data of its group, s2_g = 1): steady speed and drive
 speeds as the fit will state them, the rounding error of a straight line through encoder
@@ -30,10 +31,9 @@ from omnibench.analysis.fitting import (
     MIN_SWEEP_SPEED,
     REWEIGHT_MIN_DOF,
     FitResult,
-    _Problem,
     creeping_ground_speeds,
-    param_scale,
 )
+from omnibench.analysis.least_squares import param_scale, weighted_residuals
 from omnibench.analysis.observations import (
     DEFAULT_TAPE_SE,
     RUN_COLUMNS,
@@ -232,8 +232,7 @@ def _simulate_sensitivity(robot: Robot, cands: Sequence[Candidate], names: list[
     used &= ~slow & ~creeping_ground_speeds(t, f0, robot)  # a wheel predicted stuck on the ground: the fit leaves it out
     groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
     pred.measured = f0.copy()
-    prob = _Problem(robot, pred, names, used, pred.sigma)
-    prob.scale = scale
+    prob = weighted_residuals(robot, pred, names, used, pred.sigma, scale=scale)
     J = prob.jacobian(np.array([float(_value(robot, p)) for p in names]) / scale)
     rows = np.flatnonzero(used)
     cand_of = np.array([int(str(r).split("-")[1]) for r in t["run"].to_numpy()[rows]])
@@ -263,7 +262,7 @@ def _speed_sigma(pred: Predictor, obs: Observations, f0: np.ndarray, counts_per_
 
 
 def _value(robot: Robot, name: str) -> float:
-    from omnibench.analysis.fitting import param_value
+    from omnibench.analysis.least_squares import param_value
 
     return param_value(robot, name)
 
@@ -286,8 +285,7 @@ def prior_information(res: FitResult | None, names: Sequence[str], scale: np.nda
     sigma = r["sigma"].to_numpy(float)
     groups = (r["procedure"].astype(str) + "/" + r["signal"].astype(str)).to_numpy()
     s2 = np.array([res.group_s2.get(g, 1.0) or 1.0 for g in groups])
-    prob = _Problem(res.robot, pred, list(names), used, sigma)
-    prob.scale = scale
+    prob = weighted_residuals(res.robot, pred, list(names), used, sigma, scale=scale)
     J = prob.jacobian(np.array([float(_value(res.robot, p)) for p in names]) / scale)
     Jw = J / np.sqrt(s2[used])[:, None]
     return M + Jw.T @ Jw

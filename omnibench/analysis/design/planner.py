@@ -52,7 +52,8 @@ from omnibench.analysis.design.space import (
     Space,
     sequence_actions,
 )
-from omnibench.analysis.fitting import CORE, RANK_TOL, FitResult, param_unit, param_value
+from omnibench.analysis.fitting import RANK_TOL, FitResult
+from omnibench.analysis.least_squares import CORE, param_unit, param_value
 from omnibench.errors import UserError
 from omnibench.procedures import World
 

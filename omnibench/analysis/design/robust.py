@@ -33,7 +33,7 @@ def prior_points(robot: Robot, unmeasured: Sequence[str]) -> list[dict[str, floa
     """Values of the unmeasured parameters to plan at: the robot file's, and each one times and
     divided by SPREAD with the others at the file's (2 n + 1 points; an order of magnitude is all
     the lab is assumed to know before the first run that measures them)."""
-    from omnibench.analysis.fitting import param_value
+    from omnibench.analysis.least_squares import param_value
 
     centre = {p: float(param_value(robot, p)) for p in unmeasured}
     out = [dict(centre)]
@@ -63,7 +63,7 @@ def expected_repeats_of(res: Any, obs: Any, designs: Sequence[Sequence[Any]], ta
     the rows, the most of the pilot's planning time)."""
     from omnibench.analysis.design.information import candidate_information, prior_information
     from omnibench.analysis.design.planner import information_se, planning_names, target_se
-    from omnibench.analysis.fitting import param_value
+    from omnibench.analysis.least_squares import param_value
 
     cands = list(dict.fromkeys(u.candidate for d in designs for u in d))
     where = {c: k for k, c in enumerate(cands)}

@@ -1,8 +1,11 @@
 """The diagnosis engine: one measurement vector, profile-likelihood fits, screening, held-out errors.
 
-Data. `Problem` wraps the fit engineer's `Predictor`: every observation entry (a steady wheel
+Data. `Problem` is the analysis's one least-squares problem (`least_squares.Problem`, the
+engine `omnibench fit` uses too) over every observation entry of some procedures (a steady wheel
 speed, a mean current, a drive speed, a distance, an energy, a step-response speed sample) with
-its metadata (procedure, run, step, wheel, speed, F_N, direction, time, current, duty).
+its metadata (procedure, run, step, wheel, speed, F_N, direction, time, current, duty), its noise
+groups' floors and the profile deviance. Parameter vectors, predictions and forward-difference
+stencils are the engine's (`least_squares.Parameters`, `Problem.stencil`, `fd_steps`).
 
 Noise model. Entries fall in groups (procedure/signal; entries without a standard error form
 their own group). Within a group the entry's own standard error sigma_k sets the relative
@@ -40,23 +43,17 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
+from omnibench.analysis import least_squares
 from omnibench.analysis.diagnosis.encoder_se import encoder_se
 from omnibench.analysis.diagnosis.robust_se import cluster_se
-from omnibench.analysis.fitting import param_bounds, param_scale, param_value, with_params
+from omnibench.analysis.least_squares import Parameters, param_value
 from omnibench.analysis.observations import Observations
-from omnibench.analysis.predictor import PHYSICS_DT, Predictor
+from omnibench.analysis.predictor import Predictor
 from omnibench.effects.library import Effect
 
-FD_STEP = 1e-4  # forward-difference step, in units of each parameter's scale
-# Command latencies shift the duty schedule in time. The simulator integrates on a fixed
-# physics step, and where a wheel's speed crosses zero inside a step (every reversal) its
-# trajectory carries an error that depends on where in the step the crossing falls: the
-# prediction jumps each time a crossing moves to the next step (up to ~20 in the deviance
-# on a 4 s square wave), and a difference over a few microseconds sees those jumps as
-# slopes, so the fit stops on one of them (command_latency 19.55 ms +- 7 us for 20 ms).
-# Shifting a latency by exactly one physics step shifts the whole discretised trajectory by
-# one step, jumps included: the difference over one step is the smooth sensitivity.
-SHIFT_TERMS = ("command_latency", "serial_command_latency", "per_wheel_latency")
+#: diagnose's forward-difference step, in units of each parameter's scale (latencies: one
+#: physics step, `least_squares.fd_steps`)
+FD_STEP = 1e-4
 CV_FOLDS = 5
 MIN_SCALE_KNOWN = 0.5  # floor of s_g for groups with stated standard errors
 MIN_SCALE_UNKNOWN = 1e-3  # floor of s_g / RMS(measured) for groups without
@@ -89,21 +86,23 @@ class ModelFit:
         return problem.y - self.f
 
 
-class Problem:
-    """The measurement vector of some procedures of `obs` and its model predictions."""
+class Problem(least_squares.Problem):
+    """The measurement vector of some procedures of `obs` and its model predictions: every
+    entry with a value is used, weighted by its stated standard error (1 without one, in a group
+    of its own); each call's parameter sets at the simulator's sub-steps; a group becomes blind
+    to a parameter once its difference step left it unchanged at two points."""
 
     def __init__(self, obs: Observations, procedures: Sequence[str] | None = None) -> None:
         self.obs = obs
-        self.pred = Predictor(obs, procedures)
-        self.procedures = self.pred.procedures
-        t = self.pred.table.copy()
-        self.y = self.pred.measured.astype(float)
-        sig = self.pred.sigma.astype(float)
+        pred = Predictor(obs, procedures)
+        self.procedures = pred.procedures
+        t = pred.table.copy()
+        y = pred.measured.astype(float)
+        sig = pred.sigma.astype(float)
         known = np.isfinite(sig) & (sig > 0)
-        self.sigma = np.where(known, sig, 1.0)
-        self.used = np.isfinite(self.y)
         base = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
-        self.group = np.where(known, base, base + "/no-se").astype(object)
+        super().__init__(pred, np.isfinite(y), np.where(known, sig, 1.0),
+                         np.where(known, base, base + "/no-se").astype(object))
         # CV groups: whole run steps; a step-response run in time blocks
         step = t["step"].to_numpy()
         block = np.where(t["procedure"].to_numpy() == "step_response",
@@ -120,51 +119,8 @@ class Problem:
             m = self.used & (self.group == g)
             self.floor[g] = (MIN_SCALE_KNOWN if not str(g).endswith("/no-se")
                              else MIN_SCALE_UNKNOWN * float(np.sqrt(np.mean(self.y[m] ** 2))) or 1e-12)
-        self.nfev = 0
-        #: simulation groups (Predictor.group_entries) whose predictions a parameter does not move:
-        #: parameter name -> group keys (seen unchanged by its difference step at two points, and
-        #: never changed); a Jacobian does not simulate them for that parameter (`predict_steps`)
-        self.blind: dict[str, set[tuple]] = {}
-        self._unchanged: dict[tuple[str, tuple], set[str] | None] = {}  # points seen unchanged; None: moved
-        self._group_idx = self.pred.group_entries()
         #: per noise group: its used entries (mask) and their count, for `rss` (called per evaluation)
         self._masks = {g: (m, int(m.sum())) for g in self.groups for m in [self.used & (self.group == g)]}
-
-    def __len__(self) -> int:
-        return len(self.y)
-
-    def predict(self, robots: Sequence[Any]) -> np.ndarray:
-        """Predictions (len(robots), n entries)."""
-        self.nfev += len(robots)
-        return self.pred.predict(list(robots))
-
-    def predict_steps(self, robots: Sequence[Any], names: Sequence[str]) -> np.ndarray:
-        """Predictions (len(robots), n entries) of a difference stencil: robots[j + 1] is robots[0]
-        with parameter names[j] stepped. A group the parameter is known not to move (`blind`)
-        is not simulated for it: its predictions are robots[0]'s, bit for bit what the
-        simulation would give. Learns `blind` from what it simulates: a group counts as blind
-        to a parameter once two of its steps (at different points) changed nothing there."""
-        skip = {key: {1 + j for j, n in enumerate(names) if key in self.blind.get(n, ())}
-                for key in self._group_idx}
-        F = self.predict(robots) if not any(skip.values()) else self._predict_skipping(robots, skip)
-        point = repr(robots[0])
-        for key, idx in self._group_idx.items():
-            for j, n in enumerate(names):
-                seen = self._unchanged.get((n, key), set())
-                if 1 + j in skip[key] or seen is None:
-                    continue
-                if np.array_equal(F[1 + j, idx], F[0, idx]):
-                    seen = seen | {point}
-                    self._unchanged[(n, key)] = seen
-                    if len(seen) >= 2:
-                        self.blind.setdefault(n, set()).add(key)
-                else:
-                    self._unchanged[(n, key)] = None  # it moves them somewhere: never blind
-        return F
-
-    def _predict_skipping(self, robots: Sequence[Any], skip: Mapping[tuple, set[int]]) -> np.ndarray:
-        self.nfev += len(robots)
-        return self.pred.predict(list(robots), same_as_first=skip)
 
     # ----------------------------------------------------------------- likelihood pieces
     def rss(self, f: np.ndarray) -> dict[str, tuple[float, int]]:
@@ -230,13 +186,6 @@ def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] |
 SETTLE_PASSES = 6
 
 
-def fd_steps(free: Sequence[str], scl: np.ndarray) -> np.ndarray:
-    """Forward-difference step of each free parameter in units of its scale: FD_STEP, and one
-    physics step for a latency (SHIFT_TERMS)."""
-    return np.array([PHYSICS_DT / s if p.split(".")[0] in SHIFT_TERMS and s > 0 else FD_STEP
-                     for p, s in zip(free, scl)])
-
-
 def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: int = 20, passes: int = SETTLE_PASSES,
               scale: Mapping[str, float] | None = None) -> ModelFit:
     """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param),
@@ -245,15 +194,12 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
 
     `robot` is the start point and holds every fixed parameter."""
     free = list(free)
-    scl = np.array([param_scale(robot, p) for p in free])
-    lo = np.array([param_bounds(robot, p)[0] for p in free]) / scl
-    hi = np.array([param_bounds(robot, p)[1] for p in free]) / scl
-    x = np.clip(np.array([param_value(robot, p) for p in free]) / scl, lo, hi)
+    params = Parameters(robot, free)
+    scl, lo, hi = params.scale, params.lower, params.upper
+    x = np.clip(params.x_of(robot), lo, hi)
     used = problem.used
-    steps = fd_steps(free, scl)
-
-    def at(xv: np.ndarray) -> Any:
-        return with_params(robot, {p: float(v) for p, v in zip(free, xv * scl)})
+    steps = params.steps(FD_STEP)
+    at = params.robot_at
 
     f0 = problem.predict([at(x)])[0]
     s = dict(scale) if scale else problem.scales(f0)
@@ -272,12 +218,9 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
         def jac(xv: np.ndarray) -> np.ndarray:
             # least_squares asks for the Jacobian where it has just evaluated the residual: the
             # prediction there is cached, and only the shifted points are simulated
-            key = xv.tobytes()
-            shifted = [xv + steps[j] * np.eye(len(xv))[j] for j in range(len(xv))]
-            F = problem.predict_steps([at(v) for v in [xv] + shifted], free)
-            f0, F = F[0], F[1:]
-            cache[key] = f0
-            return -((F - f0) / steps[:, None] * w).T[used]
+            F = problem.stencil(params, xv, steps)
+            cache[xv.tobytes()] = F[0]
+            return -(problem.differences(F, steps) * w).T[used]
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
@@ -294,10 +237,9 @@ def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: in
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
-        xs = [x] + [x + steps[j] * np.eye(len(x))[j] for j in range(len(x))]
-        F = problem.predict_steps([at(v) for v in xs], free)
+        F = problem.stencil(params, x, steps)
         f0 = F[0]
-        J = ((F[1:] - F[0]) / steps[:, None]).T / scl
+        J = problem.differences(F, steps).T / scl
     else:
         J = np.zeros((len(problem), 0))
     w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
