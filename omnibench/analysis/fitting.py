@@ -50,7 +50,7 @@ import datetime as _dt
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -67,6 +67,9 @@ from omnibench.analysis.least_squares import (
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
 from omnibench.errors import UserError
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: Singular values below this fraction of the largest are directions the data cannot see.
 RANK_TOL = 1e-6
@@ -112,7 +115,7 @@ def _noise_reweighting(groups: np.ndarray, used: np.ndarray, r: np.ndarray, J: n
             fac[groups == g] = math.sqrt(max(float(np.sum(r[m] ** 2)) / dof_g, 1e-6))
     return fac if np.any(np.abs(fac - 1.0) > 0.05) else None
 
-def default_free(robot: Any, obs: Observations, procedures: Sequence[str] | None = None) -> list[str]:
+def default_free(robot: Robot, obs: Observations, procedures: Sequence[str] | None = None) -> list[str]:
     """The parameters each procedure present is designed to measure: sweep -> a, b, c (and k_e,
     R_a when currents were logged); forward -> C_r; lateral -> a_r, b_r, c_r; plus every
     parameter of the effects the robot declares."""
@@ -156,7 +159,7 @@ class FitResult:
     """Everything a fit found (SI units). Parameters that are not identifiable keep their
     robot-file value in `values` and have NaN `se`/`ci95`; check `identifiable[name]`."""
 
-    robot: Any
+    robot: Robot
     free: list[str]
     values: dict[str, float]
     se: dict[str, float]
@@ -256,7 +259,7 @@ class FitResult:
 
 
 # ----------------------------------------------------------------------------- III.i closed form
-def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
+def sweep_linear_estimate(robot: Robot, sweep: pd.DataFrame) -> dict[str, float]:
     """The paper's III.i least squares in the torque domain (a fast closed form; start values).
 
     Steady state upside down: tau_motor = (1 + c F_N)(a omega + b sign omega), with tau_motor =
@@ -303,7 +306,7 @@ def sweep_linear_estimate(robot: Any, sweep: pd.DataFrame) -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- the fit
-def _usable(pred: Predictor, robot: Any) -> np.ndarray:
+def _usable(pred: Predictor, robot: Robot) -> np.ndarray:
     t = pred.table
     ok = np.isfinite(pred.measured)
     sw = (t["procedure"] == "sweep").to_numpy()
@@ -311,7 +314,7 @@ def _usable(pred: Predictor, robot: Any) -> np.ndarray:
     return ok & ~slow & ~creeping_ground_speeds(t, pred.measured, robot)
 
 
-def creeping_ground_speeds(t: pd.DataFrame, speed: np.ndarray, robot: Any) -> np.ndarray:
+def creeping_ground_speeds(t: pd.DataFrame, speed: np.ndarray, robot: Robot) -> np.ndarray:
     """Ground-run wheel-speed entries slower than MIN_GROUND_SPEED_WIDTHS sign widths (`speed`:
     measured, or predicted where the planner asks)."""
     ground_w = t["procedure"].isin(["forward", "lateral"]).to_numpy() & (t["signal"] == "w").to_numpy()
@@ -370,7 +373,7 @@ STAGES = (("sweep", {"a", "b", "c", "k_t", "k_e", "R_a", "eta"}), ("forward", {"
           ("lateral", {"a_r", "b_r", "c_r"}))
 
 
-def _solve(prob: WeightedResiduals, names: list[str], robot: Any, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
+def _solve(prob: WeightedResiduals, names: list[str], robot: Robot, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounded trust-region least squares from x0; returns (x, weighted Jacobian at x)."""
     lo = np.array([param_bounds(robot, p)[0] for p in names]) / prob.scale
     hi = np.array([param_bounds(robot, p)[1] for p in names]) / prob.scale
@@ -398,7 +401,7 @@ def _pinned(value: float, bounds: tuple[float, float], scale: float) -> str:
     return ""
 
 
-def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
+def fit(robot: Robot, obs: Observations, free: Sequence[str] | None = None, *,
         procedures: Sequence[str] | None = None, max_nfev: int = 40,
         progress: Callable[[str], None] | None = None) -> FitResult:
     """Weighted least-squares fit of `free` parameters to `obs` through the simulator.
@@ -460,7 +463,7 @@ def fit(robot: Any, obs: Observations, free: Sequence[str] | None = None, *,
     )
 
 
-def _fit_request(robot: Any, obs: Observations, free: Sequence[str] | None,
+def _fit_request(robot: Robot, obs: Observations, free: Sequence[str] | None,
                  procedures: Sequence[str] | None) -> tuple[list[str], list[str]]:
     """The procedures that enter (those with rows) and the free parameters, checked."""
     procs = [p for p in (procedures or DEFAULT_PROCEDURES) if len(obs.table(p))]
@@ -476,7 +479,7 @@ def _fit_request(robot: Any, obs: Observations, free: Sequence[str] | None,
     return procs, names
 
 
-def _left_out(pred: Predictor, used: np.ndarray, robot: Any) -> list[str]:
+def _left_out(pred: Predictor, used: np.ndarray, robot: Robot) -> list[str]:
     """Notes on the measured entries the fit leaves out (creeping ground wheels, slow sweep steps)."""
     notes: list[str] = []
     n_creep = int((np.isfinite(pred.measured) & creeping_ground_speeds(pred.table, pred.measured, robot)).sum())
@@ -492,7 +495,7 @@ def _left_out(pred: Predictor, used: np.ndarray, robot: Any) -> list[str]:
     return notes
 
 
-def _start_point(robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str]) -> Any:
+def _start_point(robot: Robot, obs: Observations, procs: Sequence[str], free: Sequence[str]) -> Robot:
     """The start values: the paper's closed form for III.i (a, b, c) where the sweep is fitted."""
     if "sweep" not in procs or not {"a", "b"} <= set(free):
         return robot
@@ -539,7 +542,7 @@ class _Identified:
     cond: float
 
 
-def _identify(prob: WeightedResiduals, robot: Any, free: list[str], procs: Sequence[str]) -> _Identified:
+def _identify(prob: WeightedResiduals, robot: Robot, free: list[str], procs: Sequence[str]) -> _Identified:
     """Identifiability at the start point: parameters without any column are not identifiable;
     each invisible combination holds its parameter of lowest `_fix_priority` fixed."""
     J0 = prob.jacobian(np.array([param_value(prob.robot, p) for p in free]) / prob.scale)
@@ -575,9 +578,9 @@ def _identify(prob: WeightedResiduals, robot: Any, free: list[str], procs: Seque
     return _Identified(active, fixed, verdicts, rank_req, cond_req)
 
 
-def _warm_start(robot: Any, start: Any, obs: Observations, pred: Predictor, procs: Sequence[str],
+def _warm_start(robot: Robot, start: Robot, obs: Observations, pred: Predictor, procs: Sequence[str],
                 active: list[str], fixed: list[str], used: np.ndarray, sigma: np.ndarray, max_nfev: int,
-                say: Callable[[str], None]) -> Any:
+                say: Callable[[str], None]) -> Robot:
     """The joint fit's start: the fixed parameters at their robot-file values, then (with more
     than one procedure) each procedure's own parameters fitted to it alone, in the paper's order
     (III.i -> III.ii -> III.iii)."""
@@ -595,7 +598,7 @@ def _warm_start(robot: Any, start: Any, obs: Observations, pred: Predictor, proc
     return current
 
 
-def _joint_fit(robot: Any, current: Any, pred: Predictor, active: list[str], used: np.ndarray, sigma: np.ndarray,
+def _joint_fit(robot: Robot, current: Robot, pred: Predictor, active: list[str], used: np.ndarray, sigma: np.ndarray,
                groups: np.ndarray, unknown: np.ndarray, max_nfev: int,
                say: Callable[[str], None]) -> tuple[WeightedResiduals, np.ndarray, np.ndarray]:
     """Every active parameter fitted to every procedure from `current`: (problem, x, weighted
@@ -618,7 +621,7 @@ def _joint_fit(robot: Any, current: Any, pred: Predictor, active: list[str], use
     return prob, xa, J
 
 
-def _reweighted(prob: WeightedResiduals, robot: Any, active: list[str], groups: np.ndarray, used: np.ndarray,
+def _reweighted(prob: WeightedResiduals, robot: Robot, active: list[str], groups: np.ndarray, used: np.ndarray,
                 xa: np.ndarray, J: np.ndarray, max_nfev: int,
                 say: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
     """The joint fit again with each large group weighted by its own noise, when that moves a
@@ -704,7 +707,7 @@ def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.n
     return _Covariance(chi2, dof, chi2 / dof, cov, se_a, corr, tq, group_s2, group_dof, residuals, structure)
 
 
-def _confounded(prob: WeightedResiduals, robot: Any, obs: Observations, procs: Sequence[str], free: Sequence[str],
+def _confounded(prob: WeightedResiduals, robot: Robot, obs: Observations, procs: Sequence[str], free: Sequence[str],
                 active: list[str], xa: np.ndarray, J: np.ndarray, verdicts: dict[str, Verdict]) -> list[dict[str, Any]]:
     """Conditional parameters: fitted ones the data cannot separate from a fixed constant (the
     sweep without current: k_e; forward runs without a sweep: c). Marks them in `verdicts` and
@@ -736,7 +739,7 @@ def _confounded(prob: WeightedResiduals, robot: Any, obs: Observations, procs: S
     return confounded
 
 
-def _final_verdicts(robot: Any, prob: WeightedResiduals, active: list[str], values: Mapping[str, float],
+def _final_verdicts(robot: Robot, prob: WeightedResiduals, active: list[str], values: Mapping[str, float],
                     se: Mapping[str, float], ci: Mapping[str, tuple[float, float]],
                     verdicts: dict[str, Verdict]) -> None:
     """'at bound' for a fitted value on a physical bound or at zero; 'identified' for the rest."""
@@ -792,14 +795,14 @@ def fit_digest(pred: Predictor, used: np.ndarray, free: Sequence[str]) -> str:
     return h.hexdigest()
 
 
-def robot_digest(robot: Any) -> str:
+def robot_digest(robot: Robot) -> str:
     """SHA-256 (hex) of every value of a robot (its repr: floats round-trip exactly)."""
     import hashlib
 
     return hashlib.sha256(repr(robot).encode()).hexdigest()
 
 
-def refit_needed(robot: Any, obs: Observations, procedures: Sequence[str], fit_info: Mapping[str, Any]) -> bool:
+def refit_needed(robot: Robot, obs: Observations, procedures: Sequence[str], fit_info: Mapping[str, Any]) -> bool:
     """False when `robot` is, unchanged, what `fit(…, obs, procedures=procedures)` wrote with
     its default free parameters: its [fit] table (`fit_info`) names these procedures, the
     digest of these observations (`fit_digest`) and the digest of this robot (`robot_digest`).
@@ -853,7 +856,7 @@ def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:
     return out
 
 
-def fit_per_wheel(robot: Any, obs: Observations, free: Sequence[str] = ("a", "b", "c")) -> dict[int, FitResult]:
+def fit_per_wheel(robot: Robot, obs: Observations, free: Sequence[str] = ("a", "b", "c")) -> dict[int, FitResult]:
     """III.i per wheel: the sweep of each wheel fitted on its own (wheels differ on a real robot)."""
     out = {}
     for j in sorted(int(w) for w in obs.sweep["wheel"].unique()):
@@ -872,7 +875,7 @@ def _residual_frame(pred: Predictor, f: np.ndarray, sigma: np.ndarray, used: np.
     return df
 
 
-def predict_observations(robot: Any, obs: Observations, procedures: Sequence[str] | None = None) -> pd.DataFrame:
+def predict_observations(robot: Robot, obs: Observations, procedures: Sequence[str] | None = None) -> pd.DataFrame:
     """The model's prediction of every observation entry: the entry table (procedure, run, step,
     wheel, signal, unit, measured, sigma, speed, F_N, direction, time, current, u, payload) plus
     predicted, residual (measured - predicted) and normalised (residual / sigma; NaN when the
@@ -898,7 +901,7 @@ def _nrmse_table(df: pd.DataFrame) -> dict[str, float]:
     return out
 
 
-def error_by_procedure(robot: Any, obs: Observations, procedures: Sequence[str] | None = None,
+def error_by_procedure(robot: Robot, obs: Observations, procedures: Sequence[str] | None = None,
                        kind: str = "nrmse") -> dict[str, float]:
     """A normalised prediction error per procedure (for held-out comparisons).
 

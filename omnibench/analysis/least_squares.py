@@ -54,7 +54,7 @@ FD_STEP = 1e-5  # the fit's forward-difference step, relative to each parameter'
 
 
 # ----------------------------------------------------------------------------- parameter names
-def _effect_param(robot: Any, name: str) -> tuple[str, str, Any]:
+def _effect_param(robot: Robot, name: str) -> tuple[str, str, Any]:
     eff, _, p = name.partition(".")
     from omnibench.model.terms import get_term
 
@@ -71,7 +71,7 @@ def _effect_param(robot: Any, name: str) -> tuple[str, str, Any]:
     return eff, p, spec
 
 
-def param_value(robot: Any, name: str) -> float:
+def param_value(robot: Robot, name: str) -> float:
     """Current value (SI) of a parameter name on `robot`."""
     if "." in name:
         eff, p, spec = _effect_param(robot, name)
@@ -81,7 +81,7 @@ def param_value(robot: Any, name: str) -> float:
     return float(getattr(robot, name))
 
 
-def param_bounds(robot: Any, name: str) -> tuple[float, float]:
+def param_bounds(robot: Robot, name: str) -> tuple[float, float]:
     """Physical bounds (SI) of a parameter."""
     if "." in name:
         _, _, spec = _effect_param(robot, name)
@@ -98,7 +98,7 @@ def param_bounds(robot: Any, name: str) -> tuple[float, float]:
     return 1e-6, math.inf
 
 
-def param_scale(robot: Any, name: str) -> float:
+def param_scale(robot: Robot, name: str) -> float:
     """Typical magnitude used to scale a parameter (its value, else a documented typical size)."""
     v = abs(param_value(robot, name))
     if "." in name:
@@ -109,14 +109,14 @@ def param_scale(robot: Any, name: str) -> float:
     return max(v, TYPICAL.get(name, 1.0) * 0.1)
 
 
-def param_unit(robot: Any, name: str) -> str:
+def param_unit(robot: Robot, name: str) -> str:
     """SI unit of a parameter ('' when it has none on record)."""
     if "." in name:
         return str(_effect_param(robot, name)[2].unit)
     return UNITS.get(name, "")
 
 
-def with_params(robot: Any, values: Mapping[str, float]) -> Any:
+def with_params(robot: Robot, values: Mapping[str, float]) -> Robot:
     """A copy of `robot` with parameters set (fields and `<effect>.<param>`)."""
     fields: dict[str, float] = {}
     effects = None

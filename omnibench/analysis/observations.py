@@ -51,6 +51,7 @@ from omnibench.procedures import RUN_PROCEDURES  # run.json `procedure` -> Obser
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
+    from omnibench.runs import Run
 
 PROCEDURES = ("sweep", "forward", "lateral", "energy", "step_response")
 
@@ -234,7 +235,7 @@ def _num(v: Any) -> float:
     return x
 
 
-def _run_robot(run: Any, robot: Robot | None) -> Robot:
+def _run_robot(run: Run, robot: Robot | None) -> Robot:
     if robot is not None:
         return robot
     from omnibench.model import default_robot
@@ -267,7 +268,7 @@ def _trace(samples: pd.DataFrame, t0: float | None, cpr: float, relative: bool =
     return pd.DataFrame(out)
 
 
-def run_key(run: Any) -> str:
+def run_key(run: Run) -> str:
     """The key a run's rows carry: its run id (validated by omnibench.runs: a file-name safe
     name; two folders holding one id are refused, never merged or counted twice)."""
     return str(run.run_id)
@@ -310,7 +311,7 @@ def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str
     return out
 
 
-def _from_run(run: Any, robot: Robot | None, rid: str | None = None) -> Observations:
+def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observations:
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
         raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
@@ -363,7 +364,7 @@ def _from_run(run: Any, robot: Robot | None, rid: str | None = None) -> Observat
     return obs
 
 
-def _sweep_rows(run: Any, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
+def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
     rows = []
     floor = quantisation_se(cpr)
     v_batt = supply_at_rest(run.samples)  # the run's, the same for every step
@@ -456,7 +457,7 @@ def timed_row(rid: str, k: int, u: Sequence[float], duration: float, t_total: fl
     return row
 
 
-def _run_rows(run: Any, rid: str, robot: Robot, cpr: float, proc: str) -> tuple[pd.DataFrame, dict]:
+def _run_rows(run: Run, rid: str, robot: Robot, cpr: float, proc: str) -> tuple[pd.DataFrame, dict]:
     rows, traces = [], {}
     for _, st in run.steps.iterrows():
         k = int(st["step"])

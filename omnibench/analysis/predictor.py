@@ -26,7 +26,7 @@ import math
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import pandas as pd
@@ -34,6 +34,9 @@ import pandas as pd
 from omnibench.analysis.observations import Observations, slope_fit
 from omnibench.model.scenario import Mode, Scenario
 from omnibench.model.simulator import decay_rates_of, simulate_batch, stable_substeps
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 SWEEP_HOLD = 0.3  # s simulated per sweep steady state
 PHYSICS_DT = 1e-3  # s
@@ -491,7 +494,7 @@ def run_mode(obs: Observations, run: str) -> Mode:
     return cast(Mode, str(obs.runs.get(run, {}).get("mode", "upside_down")))
 
 
-def with_supply(robot: Any, v_batt: float) -> Any:
+def with_supply(robot: Robot, v_batt: float) -> Robot:
     """`robot` with its supply voltage set to the logged one (unchanged when none was logged):
     a campaign's battery sags, and a fixed nominal voltage biases a and k_e."""
     if not math.isfinite(v_batt) or v_batt <= 0 or v_batt == robot.V_batt:

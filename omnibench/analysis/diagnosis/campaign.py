@@ -21,7 +21,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -30,6 +30,9 @@ from omnibench.analysis.observations import STEP_RESPONSE_COLUMNS, TRACE_COLUMNS
 from omnibench.analysis.simcampaign import plant_simulator, simulated_observations
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate_batch
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 CURRENT_NOISE = 0.01  # A, as the simulated board
 CURRENT_LSB = 1e-3  # A
@@ -135,7 +138,7 @@ OUT_OF_LIBRARY: dict[str, tuple[CampaignSpec, dict]] = {
 }
 
 
-def campaign(robot: Any, spec: CampaignSpec, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
+def campaign(robot: Robot, spec: CampaignSpec, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
              seed: int = 0, generator: str = "model") -> Observations:
     """`simulated_campaign` for a CampaignSpec."""
     files = {k: v for k, v in SHORT_FILES.items() if k in spec.procedures} if spec.short else None
@@ -143,7 +146,7 @@ def campaign(robot: Any, spec: CampaignSpec, world_effects: Mapping[str, Mapping
                               step_response=spec.step_response, files=files, generator=generator)
 
 
-def simulated_campaign(robot: Any, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
+def simulated_campaign(robot: Robot, world_effects: Mapping[str, Mapping[str, float]] | None = None, *,
                        seed: int = 0, procedures: Sequence[str] = ("sweep",),
                        step_response: SquareWave | None = None, current: bool = True,
                        files: Mapping[str, str | Path] | None = None, generator: str = "model") -> Observations:
@@ -162,7 +165,7 @@ def simulated_campaign(robot: Any, world_effects: Mapping[str, Mapping[str, floa
     return obs
 
 
-def _square_wave(robot: Any, world: Mapping[str, Mapping[str, float]], spec: SquareWave, seed: int,
+def _square_wave(robot: Robot, world: Mapping[str, Mapping[str, float]], spec: SquareWave, seed: int,
                  simulate: Callable = simulate_batch) -> Observations:
     rng = np.random.default_rng(seed + 7919)
     n_seg = int(math.ceil(spec.duration / spec.half_period))

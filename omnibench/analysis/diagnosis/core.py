@@ -39,7 +39,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from omnibench.analysis.diagnosis import core_params, engine, structure, transie
 from omnibench.analysis.observations import Observations
 from omnibench.effects.library import EFFECTS, Effect
 from omnibench.errors import UserError
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 ALPHA = 1e-3  # family-wise level for adding an effect
 AMBIGUOUS = 10.0  # AIC difference below which two candidates are not told apart
@@ -262,7 +265,7 @@ def _finding_scores(findings: Sequence[structure.Finding], n_tests: int) -> dict
     return out
 
 
-def _base_free(robot: Any, obs: Observations, procs: Sequence[str],
+def _base_free(robot: Robot, obs: Observations, procs: Sequence[str],
                fit_info: Mapping[str, Any] | None = None,
                say: Callable[[str], None] | None = None) -> tuple[Any, list[str], list[str]]:
     """Start robot, identifiable free parameters of the declared model, notes (via fitting.fit;
@@ -288,7 +291,7 @@ def _base_free(robot: Any, obs: Observations, procs: Sequence[str],
     return res.robot, free, notes
 
 
-def diagnose(robot: Any, obs: Observations, *, candidates: Sequence[str] | None = None,
+def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | None = None,
              procedures: Sequence[str] | None = None, alpha: float = ALPHA, max_effects: int = 3,
              top_k: int = 4, folds: int = engine.CV_FOLDS, seed: int = 0,
              progress: Callable[[str], None] | None = None, fit_info: Mapping[str, Any] | None = None) -> Diagnosis:

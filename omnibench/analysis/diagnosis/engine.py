@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -50,6 +50,9 @@ from omnibench.analysis.least_squares import Parameters, param_value
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
 from omnibench.effects.library import Effect
+
+if TYPE_CHECKING:
+    from omnibench.model.robot import Robot
 
 #: diagnose's forward-difference step, in units of each parameter's scale (latencies: one
 #: physics step, `least_squares.fd_steps`)
@@ -64,7 +67,7 @@ STEP_RESPONSE_BLOCK = 2.0  # s: time blocks of a step-response run used as CV gr
 class ModelFit:
     """A model fitted to a Problem (SI values)."""
 
-    robot: Any
+    robot: Robot
     free: list[str]
     values: dict[str, float]
     se: dict[str, float]
@@ -166,7 +169,7 @@ def _time_since_duty_change(t: pd.DataFrame) -> np.ndarray:
     return out
 
 
-def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] | None = None) -> Any:
+def _robot_with_effect(robot: Robot, effect: Effect, values: Mapping[str, float] | None = None) -> Robot:
     """`robot` declaring `effect` (its fitted parameters at `values`, default zero = absent)."""
     # absent: every size at zero; a shape parameter that cannot be zero (a Stribeck speed) at its start
     specs = {p.name: p for p in effect.term.params}
@@ -186,7 +189,7 @@ def _robot_with_effect(robot: Any, effect: Effect, values: Mapping[str, float] |
 SETTLE_PASSES = 6
 
 
-def fit_model(problem: Problem, robot: Any, free: Sequence[str], *, max_nfev: int = 20, passes: int = SETTLE_PASSES,
+def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: int = 20, passes: int = SETTLE_PASSES,
               scale: Mapping[str, float] | None = None) -> ModelFit:
     """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param),
     re-weighting each group by its own residual scale until every scale settles within 2 % (at
