@@ -44,7 +44,7 @@ def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
     B = X0.shape[0]
     arrays = (X0, RV, P, EN, Rm, Sm, Minv, M)
     cache = _rates_cache(lay)
-    keys = [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in arrays) for b in range(B)]
+    keys = _row_keys(arrays, B)
     todo: dict[bytes, int] = {}
     for b, key in enumerate(keys):
         if key not in cache and key not in todo:
@@ -58,6 +58,15 @@ def decay_rates(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
         for key, x in zip(todo, lam):
             cache[key] = float(x)
     return np.array([cache[key] for key in keys], dtype=float)
+
+
+def _row_keys(arrays, B: int) -> list[bytes]:
+    """Each row's bytes over every array, in order (row b of each, as `tobytes`), as one string
+    per row: the same key as joining each array's row, built with one copy instead of B x arrays."""
+    if B == 0:
+        return []
+    rows = np.concatenate([np.ascontiguousarray(a).reshape(B, -1).view(np.uint8) for a in arrays], axis=1)
+    return [r.tobytes() for r in rows]
 
 
 _RATES: dict[int, tuple[Layout, dict[bytes, float]]] = {}
@@ -139,8 +148,8 @@ def ground_split(lam: np.ndarray, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -
     keep = np.ones(RV.shape[1], dtype=bool)
     keep[[kernel.RV["V_batt"], kernel.RV["lam_base"], kernel.RV["lam_phi"], kernel.RV["lam_sigma"]]] = False
     lam = np.asarray(lam, dtype=float)
-    keys = [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in (RV[:, keep], P, EN, Rm, Sm, M)) + lam[b].tobytes()
-            for b in ground]
+    keys = _row_keys((RV[ground][:, keep], P[ground], EN[ground], Rm[ground], Sm[ground], M[ground], lam[ground]),
+                     ground.size)
     todo: dict[bytes, int] = {}
     for key, b in zip(keys, ground):
         if key not in _SPLITS and key not in todo:

@@ -13,10 +13,12 @@ import math
 import re
 from functools import lru_cache
 from pathlib import Path
-
-import pint
+from typing import TYPE_CHECKING
 
 from omnibench.resources import cache_root
+
+if TYPE_CHECKING:
+    import pint
 
 _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d{1,3})?"
 _NAME = r"[^\W\d](?:[^\W]|°)*|°|%|Ω|µ\w*"
@@ -24,10 +26,15 @@ _UNIT = rf"(?:{_NAME}|\()(?:{_NAME}|[*/() ]|\*\*-?\d|\^-?\d)*"
 _POWER_OF_POWER = re.compile(r"(?:\*\*|\^)-?\d\s*\)*\s*(?:\*\*|\^)")  # m**9**9: pint would compute it
 _QUANTITY = re.compile(rf"\s*({_NUMBER})\s*({_UNIT})?\s*")
 MAX_LENGTH = 64  #: longer strings are refused before any parsing
+#: (unit written, unit asked) -> factor, converted without pint: importing pint and loading its
+#: registry is ~0.3 s of CPU in every command that reads a robot file, and the shipped one gives
+#: its roller angles in degrees. The product is pint's own to the last bit (tests/model/test_units_cache.py
+#: compares them over thousands of values).
+EXACT = {("deg", "rad"): math.pi / 180.0}
 
 
 @lru_cache(maxsize=1)
-def registry() -> pint.UnitRegistry:
+def registry() -> "pint.UnitRegistry":
     """pint's registry, its parsed definitions cached on disk by pint (0.05 s instead of
     0.3-1 s of CPU in every command that reads a robot file); uncached when that folder cannot
     be used.
@@ -36,6 +43,8 @@ def registry() -> pint.UnitRegistry:
     (~/.cache/pint) is shared by every environment, and its entries name the definition files of
     the environment that wrote them, so once that environment is deleted every other one fails
     to read the cache and silently pays the uncached parse."""
+    import pint
+
     try:
         return pint.UnitRegistry(cache_folder=pint_cache_folder())
     except Exception:  # noqa: BLE001 - a read-only home or a pint without the cache
@@ -45,6 +54,8 @@ def registry() -> pint.UnitRegistry:
 def pint_cache_folder() -> Path:
     """The disk cache of this pint installation's definitions: omnibench's cache folder /
     pint / a key of pint's version and location."""
+    import pint
+
     home = Path(pint.__file__).resolve().parent
     key = hashlib.sha256(f"{pint.__version__}\0{home}".encode()).hexdigest()[:16]
     return cache_root() / "pint" / key
@@ -76,6 +87,14 @@ def to_si(value: object, unit: str) -> float:
     if not isinstance(value, str):
         raise ValueError(f"expected a number in {unit}, got {value!r}")
     number, unit_text = parse_quantity(value)
+    factor = EXACT.get((unit_text or "", unit))
+    if factor is not None:
+        out = number * factor
+        if not math.isfinite(out):
+            raise ValueError(f"{value!r} is out of range")
+        return out
+    import pint
+
     ureg = registry()
     target = ureg.Quantity(1.0, unit if unit != "1" else "dimensionless")
     if unit_text is None:

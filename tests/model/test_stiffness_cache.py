@@ -85,3 +85,21 @@ def test_ground_split_equals_probe_by_probe():
             base = base + np.maximum(one - (base + lam_phi * f_phi + lam_sig * f_sig), 0.0) * 1.2
     np.testing.assert_allclose(got, np.column_stack([base, np.maximum(lam_phi, 1e-300), lam_sig]),
                                rtol=1e-12, atol=0.0)
+
+
+def test_row_keys_are_each_rows_bytes_joined() -> None:
+    """The remembered rates' keys: row b's bytes of every array in order (as joining each
+    array's row), for contiguous, strided, empty and one-dimensional inputs."""
+    import numpy as np
+
+    from omnibench.model.stiffness import _row_keys
+
+    rng = np.random.default_rng(0)
+    B = 5
+    arrays = [rng.normal(size=(B, 3)), rng.normal(size=(B, 4, 3)), np.zeros((B, 0)), rng.normal(size=B),
+              rng.normal(size=(8, B, 2))[:, :, 0].T]
+    assert _row_keys(arrays, B) == [b"".join(np.ascontiguousarray(a[b]).tobytes() for a in arrays)
+                                    for b in range(B)]
+    arrays[3][2] += 1e-12
+    keys = _row_keys(arrays, B)
+    assert len(set(keys)) == B and keys[2] != keys[0]

@@ -197,3 +197,25 @@ def test_run_info_types_the_fields_readers_use(tmp_path):
     (path / "run.json").write_text(json.dumps(doc))
     info = read_info(path)
     assert info.sign_map is None and info.source is None
+
+
+def test_step_samples_from_the_completing_segment_and_after_new_samples():
+    """step_samples: the samples of the segment that completed the step (an interrupted attempt
+    left out), in file order, as the boolean mask over all samples gives them; a new samples
+    table is indexed again (the per-step index is built once per table)."""
+    import pandas as pd
+
+    from omnibench.runs.store import Run
+
+    samples = pd.DataFrame({"t": [0.0, 0.1, 0.2, 0.3, 0.4, 0.5], "step": [0, 1, 1, 0, 1, 2],
+                            "segment": [0, 0, 0, 1, 1, 1]})
+    steps = pd.DataFrame({"step": [0, 1, 0], "segment": [0, 1, 1]})
+    run = Run(path=None, metadata={}, samples=samples, events=pd.DataFrame(), steps=steps, info=None)  # type: ignore[arg-type]
+    assert run.step_samples(0)["t"].tolist() == [0.3]  # the step's last row: completed in segment 1
+    assert run.step_samples(1)["t"].tolist() == [0.4]
+    assert run.step_samples(2)["t"].tolist() == [0.5]  # never completed: all its samples
+    assert run.step_samples(7).empty and list(run.step_samples(7).columns) == ["t", "step", "segment"]
+    assert run.step_samples(1).index.tolist() == [0]
+    run.samples = samples.iloc[[0, 1, 2]].reset_index(drop=True)
+    assert run.step_samples(1)["t"].tolist() == []  # segment 1 has no samples left
+    assert run.step_samples(2).empty
