@@ -34,6 +34,16 @@ machine under load): main 4ba8eb8 -> the engine branch: fit 23.6 s -> 14.7 s, di
 51.4 s -> 26.9 s (under the profiler: simulations 52.8 -> 27.5 s, screening 29.5 -> 14.0 s,
 the declared model's fit 24.0 -> 14.0 s), the deadband example 15:05 -> 6:53 (same finding).
 
+Issue 34, `omnibench fit`'s start-up (branch fitwall, main 71bceb7 -> fitwall; same model file, diff
+of the date line only). Parts measured in one process, before and after, machine at load 7-10:
+pint import + registry 0.28 s -> not imported; generating the kernel's source to find its file
+0.14-0.18 s -> 0.004 s; 25 empty Observations() tables 0.32 -> 0.01 s; step_samples of all 66
+steps 0.10 -> 0.02 s. End to end (--only fit --threads 1, alternated with main, load 3-7, so +-1 s
+of noise): CPU main 11.4 / 10.8 / 11.9 s, fitwall 9.3 / 11.0 / 8.6 s; all cores, load ~3.3:
+main 12.4 / 11.5 s CPU, 14.3 / 11.7 s wall, fitwall 11.5 / 10.7 s CPU, 14.5 / 10.9 s wall. The
+5 s wall target of a quiet machine is not shown: the kernel (~3-4 s CPU) and numpy/pandas/
+numba/scipy imports and numba's cache load (~2 s) remain.
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)
