@@ -288,3 +288,31 @@ def test_the_candidate_eta_is_the_mean_fit_time_times_the_fits_left():
     assert _eta([], 3) == ""
     assert _eta([60.0, 120.0], 2) == ", about 3:00 CPU left for them"
     assert _eta([60.0], 0) == ""
+
+
+def test_a_model_fit_keeps_its_simulations_across_settle_passes_and_stays_exact(omnibot):
+    """fit_model simulates each point once per fit (the settle passes change only the weights):
+    the predictions it reports are bit for bit a fresh simulation of the fitted robot, its
+    Jacobian the forward differences of a fresh Problem there, and its count of simulations is
+    what it ran."""
+    import numpy as np
+
+    from omnibench.analysis.diagnosis import engine
+    from omnibench.analysis.diagnosis.core import _base_free
+    from omnibench.analysis.fitting import param_scale, param_value, with_params
+
+    obs = campaign(omnibot, CampaignSpec(("sweep", "forward")), {}, seed=3)
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    before = problem.nfev
+    fit = engine.fit_model(problem, start, free, max_nfev=6, passes=3, scale={g: 1.0 for g in problem.groups})
+    assert fit.nfev == problem.nfev - before > 0
+    fresh = engine.Problem(obs, obs.procedures())
+    assert np.array_equal(fit.f, fresh.predict([fit.robot])[0], equal_nan=True)
+    scl = np.array([param_scale(fit.robot, p) for p in free])
+    steps = engine.fd_steps(free, scl) * scl
+    F = fresh.predict([fit.robot] + [with_params(fit.robot, {p: param_value(fit.robot, p) + h})
+                                     for p, h in zip(free, steps)])
+    J = ((F[1:] - F[0]) / steps[:, None]).T
+    used = problem.used
+    assert np.allclose(fit.J[used], J[used], rtol=1e-6, atol=1e-9 * np.abs(J[used]).max())

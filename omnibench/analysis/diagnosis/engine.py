@@ -75,7 +75,7 @@ class ModelFit:
     scale: dict[str, float]  # profiled noise scale s_g per group
     deviance: float
     J: np.ndarray  # d prediction / d parameter (n entries x p), unweighted, value units
-    nfev: int = 0
+    nfev: int = 0  # simulations the fit ran
     converged: bool = True
 
     def weights(self, problem: "Problem") -> np.ndarray:
@@ -203,35 +203,47 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
     used = problem.used
     steps = params.steps(FD_STEP)
     at = params.robot_at
+    nfev0 = problem.nfev
 
-    f0 = problem.predict([at(x)])[0]
+    # Between settle passes only the weights change: the unweighted predictions and differences
+    # at a point stay valid, so each is simulated once per fit (keyed by the point's bytes; the
+    # next pass starts where the last stopped, and the final Jacobian is usually the last one).
+    sims: dict[bytes, np.ndarray] = {}  # unweighted predictions at a point
+    diffs: dict[bytes, np.ndarray] = {}  # unweighted forward differences there (p x n entries)
+
+    def predicted(xv: np.ndarray) -> np.ndarray:
+        key = xv.tobytes()
+        if key not in sims:
+            sims[key] = problem.predict([at(xv)])[0]
+        return sims[key]
+
+    def differences(xv: np.ndarray) -> np.ndarray:
+        key = xv.tobytes()
+        if key not in diffs:
+            F = problem.stencil(params, xv, steps)
+            sims[key] = F[0]
+            diffs[key] = problem.differences(F, steps)
+        return diffs[key]
+
+    f0 = predicted(x)
     s = dict(scale) if scale else problem.scales(f0)
-    nfev = 1
     converged = True
     for _ in range(passes):
         w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
-        cache: dict[bytes, np.ndarray] = {}
 
         def resid(xv: np.ndarray) -> np.ndarray:
-            key = xv.tobytes()
-            if key not in cache:
-                cache[key] = problem.predict([at(xv)])[0]
-            return ((problem.y - cache[key]) * w)[used]
+            return ((problem.y - predicted(xv)) * w)[used]
 
         def jac(xv: np.ndarray) -> np.ndarray:
-            # least_squares asks for the Jacobian where it has just evaluated the residual: the
-            # prediction there is cached, and only the shifted points are simulated
-            F = problem.stencil(params, xv, steps)
-            cache[xv.tobytes()] = F[0]
-            return -(problem.differences(F, steps) * w).T[used]
+            # least_squares asks for the Jacobian where it has just evaluated the residual
+            return -(differences(xv) * w).T[used]
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
                                          x_scale=1.0, ftol=1e-7, xtol=1e-7, gtol=1e-9)
             x = sol.x
             converged = converged and sol.status > 0
-            nfev += sol.nfev + sol.njev * (len(free) + 1)
-        f0 = problem.predict([at(x)])[0]
+        f0 = predicted(x)
         s_new = problem.scales(f0)
         if all(abs(s_new[g] / s.get(g, 1.0) - 1) < 0.02 for g in s_new):
             s = s_new
@@ -240,9 +252,8 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
-        F = problem.stencil(params, x, steps)
-        f0 = F[0]
-        J = problem.differences(F, steps).T / scl
+        J = differences(x).T / scl
+        f0 = sims[x.tobytes()]
     else:
         J = np.zeros((len(problem), 0))
     w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
@@ -260,7 +271,8 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
         for p, v in zip(free, robust):
             se[p] = float(v)
     return ModelFit(robot=fitted, free=free, values={p: param_value(fitted, p) for p in free}, se=se, f=f0,
-                    scale=s, deviance=problem.deviance(f0), J=J, nfev=nfev, converged=converged)
+                    scale=s, deviance=problem.deviance(f0), J=J, nfev=problem.nfev - nfev0,
+                    converged=converged)
 
 
 def _dof_factor(problem: Problem, J: np.ndarray, w: np.ndarray, f: np.ndarray, s: Mapping[str, float]) -> np.ndarray:
