@@ -299,7 +299,7 @@ def test_a_model_fit_keeps_its_simulations_across_settle_passes_and_stays_exact(
 
     from omnibench.analysis.diagnosis import engine
     from omnibench.analysis.diagnosis.core import _base_free
-    from omnibench.analysis.fitting import param_scale, param_value, with_params
+    from omnibench.analysis.least_squares import fd_steps, param_scale, param_value, with_params
 
     obs = campaign(omnibot, CampaignSpec(("sweep", "forward")), {}, seed=3)
     problem = engine.Problem(obs, obs.procedures())
@@ -310,7 +310,7 @@ def test_a_model_fit_keeps_its_simulations_across_settle_passes_and_stays_exact(
     fresh = engine.Problem(obs, obs.procedures())
     assert np.array_equal(fit.f, fresh.predict([fit.robot])[0], equal_nan=True)
     scl = np.array([param_scale(fit.robot, p) for p in free])
-    steps = engine.fd_steps(free, scl) * scl
+    steps = fd_steps(free, scl, engine.FD_STEP) * scl
     F = fresh.predict([fit.robot] + [with_params(fit.robot, {p: param_value(fit.robot, p) + h})
                                      for p, h in zip(free, steps)])
     J = ((F[1:] - F[0]) / steps[:, None]).T
