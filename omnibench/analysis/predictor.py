@@ -395,11 +395,16 @@ class Predictor:
         self.simulated += P
         first, inverse = g.distinct()
         m = len(first)
-        rob = [with_supply(r, g.v_batt[k]) for r in robots for k in first]
-        res = simulate_batch(rob, [g.scen[k] for k in first] * P, t_cmd, np.concatenate([U[first]] * P), t_end,
-                             dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps, adaptive=True)
-        if m < n:  # every trajectory's rows, repeats copied from their first
-            res.array = res.array[(np.arange(P)[:, None] * m + inverse[None, :]).ravel()]
+        # trajectory-major: the kernel's lane groups (kernel.WIDTH neighbours) then hold one
+        # trajectory under several parameter sets, which take the same adaptive sub-steps and
+        # stick-slip branches (issue 34: ~5 % of a fit's kernel time); a trajectory's numbers do
+        # not depend on its lane (tests/analysis/test_predictor_cache.py)
+        rob = [with_supply(r, g.v_batt[k]) for k in first for r in robots]
+        res = simulate_batch(rob, [g.scen[k] for k in first for _ in range(P)], t_cmd, np.repeat(U[first], P, axis=0),
+                             t_end, dt=PHYSICS_DT, record_every=g.record_every, substeps=substeps, adaptive=True)
+        # back to parameter-set-major rows (set q, trajectory k at q * n + k), repeats copied from their first
+        if P > 1 or m < n:
+            res.array = res.array[(np.arange(P)[:, None] + inverse[None, :] * P).ravel()]
         slopes = self._drive_slopes(g, res, shift, P)
         row = np.full(len(self.entries), np.nan)
         out = np.empty((P, len(idx)))

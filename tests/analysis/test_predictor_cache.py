@@ -116,3 +116,18 @@ def test_repeated_runs_are_simulated_once_with_the_same_numbers(robot, obs, monk
                                                           np.arange(len(self.scen))))
     every = Predictor(obs).predict(robots)
     np.testing.assert_array_equal(deduplicated, every)
+
+
+def test_several_parameter_sets_equal_each_set_alone(robot, obs):
+    """A call with several parameter sets simulates them trajectory-major (one trajectory under
+    several sets in a lane group): each set's predictions are bit for bit those of that set
+    alone, with and without declared effects (a trajectory's numbers do not depend on its lane)."""
+    from omnibench.analysis.predictor import Predictor
+
+    with_effects = robot.replace(effects={"stribeck_friction": {"b_s": 0.05, "w_s": 1.0},
+                                          "battery_resistance": {"R_b": 0.1}})
+    for base in (robot, with_effects):
+        robots = [base.replace(a=base.a * s, C_r=0.02 * s) for s in (0.9, 1.0, 1.05, 1.1, 1.2)]
+        together = Predictor(obs).predict(robots, substeps=8)
+        for k, r in enumerate(robots):
+            np.testing.assert_array_equal(together[k], Predictor(obs).predict([r], substeps=8)[0])
