@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -31,6 +32,16 @@ from omnibench.model.robot import Robot
 from omnibench.model.scenario import Scenario
 from omnibench.model.stiffness import decay_rates, ground_split
 from omnibench.model.terms import Layout, layout
+
+# numba's OpenMP threading layer (GNU libgomp here) lets its worker threads spin between parallel
+# regions; a fit calls the parallel kernel ~90 times with Python in between, and on a machine with
+# other work the spinning workers take CPU from it and from the caller's own thread (issue 34:
+# `omnibench fit` on a clean campaign's runs, all cores, load 6-7: CPU 10.1 -> 9.1 s, wall 15.2 ->
+# 13.6 s, three runs each). Passive waiting sleeps at once; waking costs microseconds against a
+# region's milliseconds of work. Threading only: no number changes. Read when the OpenMP runtime
+# loads (the first `simulate_batch` of more than one lane group), so set here, before; a value
+# the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
 
 METHODS = {"heun": kernel.METHOD_HEUN, "rk4": kernel.METHOD_RK4}
 DEFAULT_METHOD = "rk4"
