@@ -44,6 +44,37 @@ main 12.4 / 11.5 s CPU, 14.3 / 11.7 s wall, fitwall 11.5 / 10.7 s CPU, 14.5 / 10
 5 s wall target of a quiet machine is not shown: the kernel (~3-4 s CPU) and numpy/pandas/
 numba/scipy imports and numba's cache load (~2 s) remain.
 
+Issue 34, `omnibench fit` on a clean campaign's runs, next round (branch h2, main cb17615 -> h2; merged without its run hand-over, below; the
+model file the same, diff of the date line only). Where its time goes, one thread, CPU, load 4-5:
+imports of numpy, pandas, numba, scipy.optimize ~1.3 s; numba loading the cached kernel 0.4-0.6 s
+(mostly numba's own registries: its BLAS check imports scipy.linalg, which scipy.optimize needs
+anyway); reading the runs 0.6 s; the fit 4.4 s, of which the kernel 3.3-4.1 s (90 calls, 273
+simulations of a group under a parameter set: sweep 142, forward 55, lateral 76); the per-wheel
+fits 0.5-0.6 s. Checked and left: every kernel call of the fit has two lane groups or more, so
+every prediction, a single parameter set too, already runs on both cores (the fit's 90 calls
+replayed lane group by lane group: 4.41 s of work, a 2-thread makespan of 2.27 s, 2.20 ideal); the
+Jacobian for the SEs and the reweighted pass's start come from the caches (no simulation); the
+sweep warm start's own Predictor re-simulates the identifiability Jacobian's sweep part (~0.03 s).
+Changed on h2: a run read by runs.check handed to the analysis' read of it (check + from_runs
+0.76-0.80 -> 0.57-0.64 s CPU; NOT merged: a process-wide cache of parsed runs keyed by file
+signatures is too much machinery for ~0.2 s); a group's parameter sets simulated trajectory-major, so a lane
+group holds one trajectory under several sets (same adaptive sub-steps): the fit's 90 kernel calls
+replayed 3.46 -> 3.27 s CPU twice, every number bit for bit; OMP_WAIT_POLICY=passive unless set
+(libgomp's workers spun ~6 ms after each parallel region, CPU taken from the fit's own thread on a
+busy machine; a 60-call microbenchmark at load 6: CPU 0.84 -> 0.45 s, wall 1.26 -> 0.85 s). End to
+end, alternating main and h2 on the same runs (the machine busy with other work throughout):
+one thread, load 6.0-8.6: main CPU 10.53 / 10.99 / 11.54 / 9.61 / 10.06 / 9.97 s, h2 11.09 /
+10.03 / 11.23 / 10.27 / 10.57 / 8.42 s (the ~0.35 s saved is below this load's noise); all cores,
+load 7.4-8.8: main CPU 12.45 / 11.01 / 10.54 / 10.37 / 11.90 s, wall 18.09 / 15.92 / 15.28 /
+15.20 / 17.51 s; h2 CPU 9.14 / 10.18 / 8.80 / 11.13 / 9.98 s, wall 13.53 / 14.89 / 12.77 / 16.20 /
+14.29 s (medians: wall 15.9 -> 14.3 s). In one process per run (fitting.fit and fit_per_wheel
+called directly, one thread, three alternations, load 4.7-6): reading the runs 0.85 / 0.67 / 0.47
+-> 0.55 / 0.45 / 0.36 s, the kernel's 90 calls 4.10 / 4.05 / 3.81 -> 3.92 / 3.43 / 3.66 s, fit and
+per-wheel fits 4.83 / 4.85 / 4.56 -> 4.72 / 4.18 / 4.42 s. diagnose on these runs with the fitted
+model: --json output and --out model identical to main's. The 5 s wall target of a quiet machine is still not shown
+(no quiet machine this round): about 1.7 s of imports and numba start-up, 0.6 s of reading, ~1.4 s
+of the fits' own Python and ~1.7 s of kernel on two cores remain.
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)
