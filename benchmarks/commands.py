@@ -75,6 +75,22 @@ model: --json output and --out model identical to main's. The 5 s wall target of
 (no quiet machine this round): about 1.7 s of imports and numba start-up, 0.6 s of reading, ~1.4 s
 of the fits' own Python and ~1.7 s of kernel on two cores remain.
 
+Issue 34, where the deadband diagnose's time goes (branch h1, on main cb17615's code: the
+README's deadband campaign at seed 8 with `--analysis none`, then `omnibench fit` and diagnose on its
+runs; one thread under cProfile, load 5-8, ~1.5x the unprofiled quiet figures): 697 s CPU,
+simulations 687 s, Jacobians 441 s, candidate fits 557 s, screening 57 s. By fit: the declared
+model 60 s (136 simulations); driver_deadband "shifted" 315 s (688 simulations: settle passes 1-4
+end at max_nfev=15 with 10-14 Jacobians each, creeping from the screen's u_0 = 0.021 to 0.040 along
+the valley of u_0 with the Coulomb term and R_a); its "cut" form 34 s (one pass); the three
+candidates found not significant (actuator_lag, per_wheel_latency, serial_command_latency; LR 0.0,
+1.9, 0.2) 19 + 106 + 83 s; the polish 19 s. Tried on h1 and not merged: candidate fits at relative
+tolerance 1e-5 (669 s, same report, but it moves candidates' evidence for 4 %); giving up a losing
+start or form from its linearised promise (unsound: at the deadband's start the linear model's
+optimum, deviance 2826-4601, is worse than the start's 1391, while the fit reaches 446); scanning
+u_0 at 0.5-3x the screen's estimate (picks 0.010 for 0.04); max_nfev 45 per pass (the first pass
+alone 39 Jacobians, 220 s, still at its limit) or 8 (stops at u_0 0.021, deviance 1223). The
+deadband target needs a solver for that valley (e.g. u_0 profiled out), not fewer passes.
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)
