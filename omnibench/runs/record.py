@@ -14,11 +14,14 @@ See docs/run-format.md for the fields and their units.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
 import re
-from collections.abc import Mapping, Sequence
+import signal
+import threading
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -531,6 +534,26 @@ def check_sample_header(path: Path) -> None:
         raise RunFileError(f"{path}:1: header names a column twice")
 
 
+@contextlib.contextmanager
+def ctrl_c_held() -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) that comes during the block and deliver it when the block ends.
+
+    pandas' C reader turns a KeyboardInterrupt raised inside its read into a ParserError
+    ("Calling read(nbytes) on source failed"): a Ctrl-C while a run was read was reported as
+    a bad samples.csv and a campaign went on to its next stage. Reading takes ~0.1 s."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread receives signals
+        return
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if held:  # to whatever handles SIGINT now (KeyboardInterrupt by default); it wins over an error
+            signal.raise_signal(signal.SIGINT)
+
+
 def read_samples(path: Path) -> pd.DataFrame:
     """samples.csv as numbers (empty cell = NaN, "not measured"); RunFileError naming the line
     and column of any cell that is not a finite number in its column's range."""
@@ -539,7 +562,8 @@ def read_samples(path: Path) -> pd.DataFrame:
         return pd.DataFrame({c: pd.Series(dtype=float) for c in SAMPLE_COLUMNS})
     check_sample_header(path)
     try:
-        df = pd.read_csv(io.StringIO(text), keep_default_na=False, na_values=[""])
+        with ctrl_c_held():
+            df = pd.read_csv(io.StringIO(text), keep_default_na=False, na_values=[""])
     except (pd.errors.ParserError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         m = re.search(r"line (\d+)", msg)

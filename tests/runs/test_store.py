@@ -219,3 +219,38 @@ def test_step_samples_from_the_completing_segment_and_after_new_samples():
     run.samples = samples.iloc[[0, 1, 2]].reset_index(drop=True)
     assert run.step_samples(1)["t"].tolist() == []  # segment 1 has no samples left
     assert run.step_samples(2).empty
+
+
+def test_ctrl_c_while_samples_are_read_is_a_ctrl_c_not_a_bad_file(tmp_path, monkeypatch):
+    """pandas' C reader swallows a KeyboardInterrupt raised in its read and reports a ParserError
+    ("Calling read(nbytes) on source failed"); a campaign then called the run bad and went on.
+    The stand-in below does what pandas does with a Ctrl-C that arrives mid-read."""
+    import os
+    import signal
+
+    import pandas as pd
+
+    from omnibench.runs import record
+
+    w = RunWriter.create(tmp_path, "upside_down_sweep", counts_per_rev=980,
+                         procedure_text="procedure = 'x'\n", board={"name": "sim"})
+    for k in range(20):
+        w.sample(_row(0, k))
+    w.finish("complete")
+    real_read_csv = pd.read_csv
+
+    def read_csv_hit_by_ctrl_c(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):  # the handler runs at the next bytecode boundary
+                pass
+        except KeyboardInterrupt:
+            raise pd.errors.ParserError("Error tokenizing data. C error: Calling read(nbytes) on source failed.") from None
+        return real_read_csv(*args, **kwargs)
+
+    monkeypatch.setattr(record.pd, "read_csv", read_csv_hit_by_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        record.read_samples(w.path / "samples.csv")
+    monkeypatch.setattr(record.pd, "read_csv", real_read_csv)
+    assert len(record.read_samples(w.path / "samples.csv")) == 20  # and the handler is back as it was
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
