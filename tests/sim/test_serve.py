@@ -110,16 +110,24 @@ def test_ammeter_served_on_its_own_pty(served) -> None:
     assert len(s) >= 5 and max(x.ammeter_current for x in s) > 0.5
 
 
-def test_wrong_baud_on_pty_is_reported(served) -> None:
-    """The server reads the speed the host set on the pty; another speed garbles the link."""
-    import pytest as _pytest
+def test_wrong_baud_on_pty_is_reported(tmp_path) -> None:
+    """The server reads the speed the host set on the pty; another speed garbles the link.
 
+    A server of its own. On the module's shared server, under load, the 9600 baud open sometimes
+    got a clean HELLO and ACK and then lost the board at its STOP (CI once; locally 3 runs in 10
+    with four CPU hogs and another pytest of this file running). With its own server: 1 in 14.
+    Where that clean reply comes from was not found: the server's log shows it switching to the
+    garbled link before it reads the 9600 open's first frame."""
     from omnibench.errors import BoardError
 
-    with _pytest.raises(BoardError, match=r"baud rate \(board expects 115200, opened at 9600\)"):
-        Board.open(served.path, baudrate=9600, timeout=0.5)
-    with Board.open(served.path) as b:  # and at the right speed it works again
-        assert b.hello.counts_per_rev == 980
+    served = spawn_server(tmp_path, "--seed", "4")
+    try:
+        with pytest.raises(BoardError, match=r"baud rate \(board expects 115200, opened at 9600\)"):
+            Board.open(served.path, baudrate=9600, timeout=0.5)
+        with Board.open(served.path) as b:  # and at the right speed it works again
+            assert b.hello.counts_per_rev == 980
+    finally:
+        served.stop()
 
 
 def test_the_fast_clock_counts_bytes_still_on_their_way_to_the_host_as_unread() -> None:
