@@ -256,3 +256,31 @@ def test_a_sweep_level_averaged_twice_as_long_is_worth_more_than_its_longer_hold
     for _, path in written:
         p = load_plan(path, robot, expect="upside_down_sweep")
         assert any(math.isclose(p.settings["steady_state"]["average"], d) for _, d in files)
+
+
+def test_timed_runs_split_by_end_time_give_the_merged_groups_numbers_bit_for_bit(monkeypatch):
+    """The planner's sensitivities simulate each end time of the forward and lateral candidates as
+    a group of its own (a group runs to its latest end: merged, the 1.5 s runs rested 3 s at full
+    sub-steps, 95 % of a plan's simulation); the Jacobian, the rows used and their groups are the
+    merged computation's, bit for bit, at the file's values and at others."""
+    import numpy as np
+
+    import omnibench.analysis.design.information as information
+    from omnibench.analysis.least_squares import param_scale
+
+    robot = default_robot()
+    sp = build_space(robot, wheel_sets=[("standard", (0.9,) * 4)], payloads=[2.0], steady=STEADY, limits=LIMITS,
+                     durations=(1.0, 2.0), forward_duties=(0.3,), headings_deg=(60,), speeds=(0.3,),
+                     sweep_duties=(0.2,))
+    cands = sp.candidates
+    assert {c.duration for c in cands if c.procedure != "sweep"} == {1.0, 2.0}
+    for model in (robot, robot.replace(a=0.02, b=0.45, c=0.015, a_r=2.5, b_r=0.8, c_r=0.02, C_r=0.03)):
+        names = planning_names(model)
+        scale = np.array([param_scale(model, p) for p in names])
+        split = information._simulate_sensitivity(model, cands, names, scale, True)
+        with monkeypatch.context() as m:
+            m.setattr(information, "split_by_end", lambda pred: pred)
+            merged = information._simulate_sensitivity(model, cands, names, scale, True)
+        assert np.array_equal(split.J, merged.J)
+        assert np.array_equal(split.cand_of, merged.cand_of) and np.array_equal(split.groups, merged.groups)
+        assert set(split.cand_of) >= {k for k, c in enumerate(cands) if c.procedure != "sweep"}
