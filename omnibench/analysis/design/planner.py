@@ -411,18 +411,21 @@ def _greedy(M0: np.ndarray, infos: np.ndarray, cands: Sequence[Candidate], ks: n
         phi = _phi(M, tidx, t2)
         if phi <= len(tidx) + 1e-9:
             return chosen, M, spent_s, spent_a, ""
-        Ms = M[None, None] + reps[:, None, None, None] * I[None]
+        have = np.array([chosen.get(int(k), 0) for k in ks])
+        ok = ((spent_s + reps[:, None] * rs[None] <= budget_s + 1e-9) & (spent_a + reps[:, None] * ms[None] <= budget_a)
+              & (have[None] + reps[:, None] <= cap[None] + 1e-9))
+        # only the steps the budget and the repetition cap allow are inverted (each matrix's
+        # inverse is the same, bit for bit, in any batch)
+        ri, ji = np.nonzero(ok)
+        Ms = M[None] + reps[ri][:, None, None] * I[ji]
         try:
             V = np.linalg.inv(Ms)
         except np.linalg.LinAlgError:
             V = np.linalg.pinv(Ms)
         d = np.diagonal(V, axis1=-2, axis2=-1)[..., tidx]
-        new = np.where(np.all(d >= 0, axis=-1), np.sum(np.maximum(d / t2, 1.0), axis=-1), np.inf)
-        ratio = (phi - new) / (reps[:, None] * unit[None])
-        have = np.array([chosen.get(int(k), 0) for k in ks])
-        ok = ((spent_s + reps[:, None] * rs[None] <= budget_s + 1e-9) & (spent_a + reps[:, None] * ms[None] <= budget_a)
-              & (have[None] + reps[:, None] <= cap[None] + 1e-9))
-        ratio = np.where(ok, ratio, -np.inf)
+        ratio = np.full(ok.shape, -np.inf)
+        ratio[ri, ji] = (phi - np.where(np.all(d >= 0, axis=-1), np.sum(np.maximum(d / t2, 1.0), axis=-1), np.inf)) / (
+            reps[ri] * unit[ji])
         r, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if not ratio[r, j] > 0:
             return chosen, M, spent_s, spent_a, ("stopped at the budget" if not ok.all() else "")
