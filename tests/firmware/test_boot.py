@@ -8,6 +8,7 @@ itself."""
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -132,8 +133,10 @@ def _open_as_the_reset_happens(boot_build, flash) -> tuple[list, float, float]:
     """One try: the rig in real time, a DTR reset and Board.open right behind it; returns the
     rig's events (BOOT lines left out), the seconds Board.open took and the rig's worst lag
     behind the wall clock (s)."""
+    from omnibench.errors import BoardError
     from omnibench.link.board import Board
 
+    failed: BoardError | None = None
     rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                            env={**os.environ, "BOOTRIG_REALTIME": "1"})
@@ -153,13 +156,23 @@ def _open_as_the_reset_happens(boot_build, flash) -> tuple[list, float, float]:
         until("APP")                       # power-on: the firmware has been running
         os.kill(rig.pid, signal.SIGUSR1)   # the port open's DTR pulse ...
         t0 = time.monotonic()
-        with Board.open(pty) as b:         # ... and the host's handshake right behind it
-            took = time.monotonic() - t0
-            assert b.hello.board_id == 1 and b.version_ok
+        try:
+            with Board.open(pty) as b:     # ... and the host's handshake right behind it
+                took = time.monotonic() - t0
+                assert b.hello.board_id == 1 and b.version_ok
+        except BoardError as exc:          # judged below, once the rig's lag is known
+            failed, took = exc, math.inf
     finally:
         rig.send_signal(signal.SIGTERM)
         out, _ = rig.communicate(timeout=30)
     ev = [e for e in events("\n".join(seen) + "\n" + out) if e[0] != "BOOT"]
+    if failed is not None:
+        # a rig far behind the wall clock is not a Mega in real time: a try to repeat, not a verdict
+        # (CI, with the CPUs busy: no HELLO within 8 s)
+        lag = float(ev[-1][2].split()[-1]) if ev and ev[-1][0] == "END" else math.inf
+        if lag < 0.5:
+            raise failed
+        return ev, took, lag
     kinds = [e[0] for e in ev]
     assert kinds == ["RESET", "APP", "RESET", "APP", "END"] and ev[2][2] == "dtr", ev  # one hand-over
     lag = float(ev[-1][2].split()[-1])

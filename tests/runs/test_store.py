@@ -248,9 +248,15 @@ def test_ctrl_c_while_samples_are_read_is_a_ctrl_c_not_a_bad_file(tmp_path, monk
             raise pd.errors.ParserError("Error tokenizing data. C error: Calling read(nbytes) on source failed.") from None
         return real_read_csv(*args, **kwargs)
 
-    monkeypatch.setattr(record.pd, "read_csv", read_csv_hit_by_ctrl_c)
-    with pytest.raises(KeyboardInterrupt):
-        record.read_samples(w.path / "samples.csv")
-    monkeypatch.setattr(record.pd, "read_csv", real_read_csv)
-    assert len(record.read_samples(w.path / "samples.csv")) == 20  # and the handler is back as it was
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # Python's own Ctrl-C handler, as in a terminal (a suite run in the background, as CI's
+    # xdist workers, inherits SIGINT ignored, and an ignored Ctrl-C is rightly held and dropped)
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        monkeypatch.setattr(record.pd, "read_csv", read_csv_hit_by_ctrl_c)
+        with pytest.raises(KeyboardInterrupt):
+            record.read_samples(w.path / "samples.csv")
+        monkeypatch.setattr(record.pd, "read_csv", real_read_csv)
+        assert len(record.read_samples(w.path / "samples.csv")) == 20  # and the handler is back as it was
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, outer)
