@@ -46,9 +46,10 @@ from scipy import optimize, stats
 from omnibench.analysis import least_squares
 from omnibench.analysis.diagnosis.encoder_se import encoder_se
 from omnibench.analysis.diagnosis.robust_se import cluster_se
-from omnibench.analysis.least_squares import Parameters, param_value
+from omnibench.analysis.least_squares import Parameters, param_value, with_params
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
+from omnibench.effects import driver
 from omnibench.effects.library import Effect
 
 if TYPE_CHECKING:
@@ -383,14 +384,43 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
             if math.isfinite(v) and lo <= v <= hi and v != 0.0:
                 start[p] = v
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
+    base = current.robot
+    data = {k: v for k, v in data_start(problem, effect).items() if k in free}
+    if data:  # kept where it fits the data better than the screen's start (two simulations)
+        robot_d = with_params(base, {k: v for k, v in data.items() if "." not in k})
+        start_d = {**start, **{k.split(".", 1)[1]: v for k, v in data.items() if "." in k}}
+        F = problem.predict([_robot_with_effect(base, effect, start), _robot_with_effect(robot_d, effect, start_d)])
+        if problem.deviance(F[1]) < problem.deviance(F[0]):
+            base, start = robot_d, start_d
     best = None
     for st in _restarts(effect, start):
-        robot = _robot_with_effect(current.robot, effect, st)
+        robot = _robot_with_effect(base, effect, st)
         f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale)
         if best is None or f.deviance < best.deviance:
             best = f
     assert best is not None, "_restarts yields the start point at least"
     return best
+
+
+def data_start(problem: Problem, effect: Effect) -> dict[str, float]:
+    """Start values ('effect.param' and the core parameters it trades against) that a closed form
+    gives from the data for `effect` in its form, {} when none does: the shifted deadband from the
+    sweep's voltage balance (`driver.deadband_start`: u_0 with R_a and k_e; the declared fit's
+    R_a took up the dead zone's offset, and from it the fit crept along the valley of u_0 with
+    R_a and the Coulomb term, every settle pass to its evaluation limit)."""
+    if effect.name != "driver_deadband" or "sweep" not in problem.procedures:
+        return {}
+    t = problem.obs.table("sweep")
+    if not len(t) or not {"u", "omega", "current", "V_batt"} <= set(t.columns):
+        return {}
+    if "steady" in t.columns:
+        t = t[t["steady"].fillna(False).astype(bool)]
+    se = t["current_se"] if "current_se" in t.columns else np.full(len(t), np.nan)
+    got = driver.deadband_start(t["u"], t["omega"], t["current"], se, t["V_batt"],
+                                cut=float(effect.fixed.get("cut", 0.0)))
+    if not got:
+        return {}
+    return {f"{effect.name}.u_0": got["u_0"], "R_a": got["R_a"], "k_e": got["k_e"]}
 
 
 def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, float]]:
