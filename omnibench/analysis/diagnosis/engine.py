@@ -385,13 +385,23 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                 start[p] = v
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
     base = current.robot
-    data = {k: v for k, v in data_start(problem, effect).items() if k in free}
-    if data:  # kept where it fits the data better than the screen's start (two simulations)
+    data = {k: v for k, v in data_start(problem, current, effect).items() if k in free}
+    if data:
         robot_d = with_params(base, {k: v for k, v in data.items() if "." not in k})
         start_d = {**start, **{k.split(".", 1)[1]: v for k, v in data.items() if "." in k}}
-        F = problem.predict([_robot_with_effect(base, effect, start), _robot_with_effect(robot_d, effect, start_d)])
-        if problem.deviance(F[1]) < problem.deviance(F[0]):
-            base, start = robot_d, start_d
+        # the parameters it leaves take one Gauss-Newton step there (the current fit's Jacobian)
+        rest = [k for k, p in enumerate(current.free) if p not in data]
+        f_d = problem.predict([_robot_with_effect(robot_d, effect, start_d)])[0]
+        w = current.weights(problem)
+        used = problem.used
+        step, *_ = np.linalg.lstsq((current.J[:, rest] * w[:, None])[used], ((problem.y - f_d) * w)[used], rcond=None)
+        robot_g = with_params(robot_d, {current.free[k]: param_value(robot_d, current.free[k]) + float(dv)
+                                        for k, dv in zip(rest, step)})
+        starts = [(base, start), (robot_d, start_d), (robot_g, start_d)]
+        F = problem.predict([_robot_with_effect(r, effect, st) for r, st in starts[::2]])
+        dev = [problem.deviance(F[0]), problem.deviance(f_d), problem.deviance(F[1])]
+        # kept where it fits the data better than the screen's start
+        base, start = starts[int(np.argmin(dev))]
     best = None
     for st in _restarts(effect, start):
         robot = _robot_with_effect(base, effect, st)
@@ -402,7 +412,11 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
     return best
 
 
-def data_start(problem: Problem, effect: Effect) -> dict[str, float]:
+#: the ground's torque terms (roller-axis friction, rolling resistance): no current is logged where they act
+GROUND_TORQUES = ("a_r", "b_r", "C_r")
+
+
+def data_start(problem: Problem, current: ModelFit, effect: Effect) -> dict[str, float]:
     """Start values ('effect.param' and the core parameters it trades against) that a closed form
     gives from the data for `effect` in its form, {} when none does: the shifted deadband from the
     sweep's voltage balance (`driver.deadband_start`: u_0 with R_a and k_e; the declared fit's
@@ -420,7 +434,14 @@ def data_start(problem: Problem, effect: Effect) -> dict[str, float]:
                                 cut=float(effect.fixed.get("cut", 0.0)))
     if not got:
         return {}
-    return {f"{effect.name}.u_0": got["u_0"], "R_a": got["R_a"], "k_e": got["k_e"]}
+    out = {f"{effect.name}.u_0": got["u_0"], "R_a": got["R_a"], "k_e": got["k_e"]}
+    # the ground runs log no current: the current fit knows their roller and rolling friction only
+    # through R_a x torque (on the README's deadband campaign R_a 3.51 with half of each), so
+    # they keep that product
+    if "R_a" in current.values:
+        k = current.values["R_a"] / got["R_a"]
+        out.update({p: current.values[p] * k for p in GROUND_TORQUES if p in current.values})
+    return out
 
 
 def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, float]]:
