@@ -46,7 +46,7 @@ from scipy import optimize, stats
 from omnibench.analysis import least_squares
 from omnibench.analysis.diagnosis.encoder_se import encoder_se
 from omnibench.analysis.diagnosis.robust_se import cluster_se
-from omnibench.analysis.least_squares import Parameters, param_value, with_params
+from omnibench.analysis.least_squares import Parameters, param_bounds, param_value, with_params
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
 from omnibench.effects import driver
@@ -375,7 +375,9 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                   *, max_nfev: int = 15) -> ModelFit:
     """Refit the current model's parameters together with `effect`'s, starting from the screen's
     estimate (clipped into the parameter bounds) or the effect's `start`, and from each of the
-    effect's `restarts`: the fit of least deviance."""
+    effect's `restarts`: the fit of least deviance. Where a closed form gives the effect's values
+    from the data (`data_start`), the start is that one, with one Gauss-Newton step for the
+    parameters it leaves, if it fits the data better than the screen's (three simulations)."""
     start = dict(effect.start)
     if estimate:
         for p, v in estimate.items():
@@ -395,7 +397,8 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
         w = current.weights(problem)
         used = problem.used
         step, *_ = np.linalg.lstsq((current.J[:, rest] * w[:, None])[used], ((problem.y - f_d) * w)[used], rcond=None)
-        robot_g = with_params(robot_d, {current.free[k]: param_value(robot_d, current.free[k]) + float(dv)
+        robot_g = with_params(robot_d, {current.free[k]: float(np.clip(param_value(robot_d, current.free[k]) + dv,
+                                                                       *param_bounds(robot_d, current.free[k])))
                                         for k, dv in zip(rest, step)})
         starts = [(base, start), (robot_d, start_d), (robot_g, start_d)]
         F = problem.predict([_robot_with_effect(r, effect, st) for r, st in starts[::2]])
