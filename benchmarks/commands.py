@@ -110,6 +110,11 @@ moves the ground terms by half what R_a 1.85 needs). End to end, `omnibench diag
 driver_deadband` on those runs (one thread, load 4-6, not alternated): main 500.7 s CPU, dz 249.3 s;
 u_0 0.0400391 +- 0.0000623 both, LR 972.7 -> 974.0, held-out errors the same to 4 digits (sweep
 6.47 -> 0.222 %, energy 7.24 -> 0.173 %); the full default diagnose was not re-measured.
+`benchmarks/diagnose.py --seeds 2 --clean 3` on driver_deadband, its cut form, stribeck_friction,
+the deadband + quadratic drag pair and the clean worlds, `--before main` at 04a4e32 (before the
+start's own scales): 11 of 11 the same answer; dz's final code alone: the same selections and
+values (u_0 0.03014 +- 0.00011, 0.02988 +- 0.00012; cut 0.08046 +- 0.0036, 0.07836 +- 0.0030;
+clean 3/3 nothing added). Wall seconds there are too noisy at this load to compare.
 
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
