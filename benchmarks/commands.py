@@ -91,6 +91,31 @@ u_0 at 0.5-3x the screen's estimate (picks 0.010 for 0.04); max_nfev 45 per pass
 alone 39 Jacobians, 220 s, still at its limit) or 8 (stops at u_0 0.021, deviance 1223). The
 deadband target needs a solver for that valley (e.g. u_0 profiled out), not fewer passes.
 
+Issue 34, the deadband's candidate fit from a data start (branch dz, on main c3571e8, same runs as
+above: seed 8, `--analysis none`, `omnibench fit`, then fit_candidate from the declared fit; one
+thread, CPU, machine loaded 4-6 by other work). Why it crept: the declared fit had taken up the dead
+zone's offset in R_a (3.51 ohm for 1.85) and, since the ground runs log no current, in the ground
+terms through R_a x torque (a_r, b_r, C_r about half their values); from the screen's u_0 0.021 the
+fit had to walk u_0 up and R_a down together. The sweep's voltage balance
+V (u - u_0 sign u) = k_e omega + R_a i is linear in k_e, R_a, u_0: one solve over its steady states
+with current gives 0.04005, 1.840, 1.605 (true 0.04, 1.846, 1.604). The start takes those, scales
+the ground terms by the R_a ratio, takes one Gauss-Newton step for a, b, c, c_r, and is kept only
+if its deviance beats the screen's start (4129 screen, 2883 data, 2329 after the step; 444 at the
+optimum); its first settle pass weighs the groups by the start's own scales. The "shifted" fit:
+315.6 s, 658 simulations, 6 passes (1-4 at max_nfev) -> 98.9 s, 172 simulations, 4 passes of 6/5/4/3
+evaluations, all converged; u_0 0.040042 +- 0.000062 -> 0.040039 +- 0.000062, deviance 444.156 ->
+444.162. Not kept: x_scale='jac' (the same costs and evaluation counts pass by pass); a linearised
+profile of u_0 over the declared fit's Jacobian (its minimum at 0.010: the Jacobian at R_a 3.51
+moves the ground terms by half what R_a 1.85 needs). End to end, `omnibench diagnose --candidates
+driver_deadband` on those runs (one thread, load 4-6, not alternated): main 500.7 s CPU, dz 249.3 s;
+u_0 0.0400391 +- 0.0000623 both, LR 972.7 -> 974.0, held-out errors the same to 4 digits (sweep
+6.47 -> 0.222 %, energy 7.24 -> 0.173 %); the full default diagnose was not re-measured.
+`benchmarks/diagnose.py --seeds 2 --clean 3` on driver_deadband, its cut form, stribeck_friction,
+the deadband + quadratic drag pair and the clean worlds, `--before main` at 04a4e32 (before the
+start's own scales): 11 of 11 the same answer; dz's final code alone: the same selections and
+values (u_0 0.03014 +- 0.00011, 0.02988 +- 0.00012; cut 0.08046 +- 0.0036, 0.07836 +- 0.0030;
+clean 3/3 nothing added). Wall seconds there are too noisy at this load to compare.
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)

@@ -50,3 +50,38 @@ driver_deadband = register(
         reveals="upside_down_sweep (lowest duties: no motion; offset independent of the wheel set)",
     )
 )
+
+
+def deadband_start(u, omega, current, current_se, v_batt, cut: float = 0.0) -> dict[str, float] | None:
+    """Start values of the shifted deadband's fit from a sweep's steady states: the armature's
+    voltage balance V (u - u_0 sign u) = k_e omega + R_a i holds at every steady state whose
+    current flows (a stalled wheel too), and is linear in k_e, R_a and u_0, so one least-squares
+    solve over the measured duty, speed and current gives all three. Without it the candidate
+    fit starts at the declared fit's R_a, which took up the dead zone's offset (3.5 ohm for
+    1.85 on the README's deadband campaign), and creeps along the valley of u_0 with R_a and
+    the Coulomb term.
+
+    Returns {"u_0", "R_a", "k_e"} or None: form 'cut' (u passes unchanged above u_0, no offset
+    in the balance), fewer than six steady states with current, a degenerate solve, or values
+    outside their physical ranges."""
+    import numpy as np
+
+    if cut != 0.0:
+        return None
+    u, omega, current = (np.asarray(x, dtype=float) for x in (u, omega, current))
+    se, v = np.asarray(current_se, dtype=float), np.asarray(v_batt, dtype=float)
+    ok = np.isfinite(u) & np.isfinite(omega) & np.isfinite(current) & np.isfinite(v) & (u != 0.0)
+    if not ok.any():
+        return None
+    # inside the dead zone no current flows and the balance does not hold: steady states whose
+    # current is clear of its noise (5 SE) and of 1 % of the largest
+    floor = 0.01 * float(np.max(np.abs(current[ok])))
+    ok &= np.abs(current) > np.maximum(np.where(np.isfinite(se), 5.0 * se, 0.0), floor)
+    if ok.sum() < 6:
+        return None
+    A = np.column_stack([omega[ok], current[ok], v[ok] * np.sign(u[ok])])
+    coef, _, rank, _ = np.linalg.lstsq(A, v[ok] * u[ok], rcond=None)
+    k_e, R_a, u_0 = (float(c) for c in coef)
+    if rank < 3 or not (0.0 < u_0 < 0.5 and R_a > 0.0 and k_e > 0.0):
+        return None
+    return {"u_0": u_0, "R_a": R_a, "k_e": k_e}
