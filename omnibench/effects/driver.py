@@ -85,3 +85,15 @@ def deadband_start(u, omega, current, current_se, v_batt, cut: float = 0.0) -> d
     if rank < 3 or not (0.0 < u_0 < 0.5 and R_a > 0.0 and k_e > 0.0):
         return None
     return {"u_0": u_0, "R_a": R_a, "k_e": k_e}
+
+
+def deadband_sweep_start(sweep, fixed) -> dict[str, float] | None:
+    """`deadband_start` on a sweep's observation table (its steady states; rows without a
+    current SE count as noise-free) for the form held at `fixed` (Effect.sweep_start)."""
+    if not len(sweep) or not {"u", "omega", "current", "V_batt"} <= set(sweep.columns):
+        return None
+    if "steady" in sweep.columns:
+        sweep = sweep[sweep["steady"].fillna(False).astype(bool)]
+    se = sweep["current_se"] if "current_se" in sweep.columns else [float("nan")] * len(sweep)
+    return deadband_start(sweep["u"], sweep["omega"], sweep["current"], se, sweep["V_batt"],
+                          cut=float(fixed.get("cut", 0.0)))

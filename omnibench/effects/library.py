@@ -9,9 +9,11 @@ and which experiment separates it from look-alikes (`separates`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
+from omnibench.effects import driver
 from omnibench.model.terms import Term, get_term
 
 
@@ -40,6 +42,12 @@ class Effect:
     #: deviance 259 from the screen's estimate, 0.33 +- 0.055 at 249 from 0.25): the candidate is
     #: also fitted from each combination, and the lowest deviance kept
     restarts: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
+    #: start values in closed form from the sweep, where the physics gives one (a plugin point
+    #: diagnosis reads): called with the sweep's observation table and the held values of the
+    #: form being fitted, it returns {parameter: value} (the effect's own and the core ones it
+    #: trades against) or None; diagnosis starts there where that fits the data better than the
+    #: screen's estimate (the shifted deadband: `driver.deadband_sweep_start`)
+    sweep_start: Callable[[Any, Mapping[str, float]], Mapping[str, float] | None] | None = None
 
     def with_form(self, form: str) -> "Effect":
         """This effect with `form`'s parameters held (unchanged for '' or an effect without forms)."""
@@ -88,7 +96,7 @@ EFFECTS: dict[str, Effect] = {
                       "deadband leaves the current-speed relation unchanged"}),
         _E("driver_deadband", fit=("u_0",), example={"u_0": 0.03}, start={"u_0": 0.01},
            fixed={"w_u": 0.002, "cut": 0.0}, procedures=("upside_down_sweep", "step_response"), variable="duty",
-           forms={"shifted": {"cut": 0.0}, "cut": {"cut": 1.0}},
+           forms={"shifted": {"cut": 0.0}, "cut": {"cut": 1.0}}, sweep_start=driver.deadband_sweep_start,
            separates={"stribeck_friction": "repeat the sweep with a heavier wheel set (deadband is "
                       "load independent) or log the motor current (deadband does not change it)"}),
         _E("asymmetric_coulomb", fit=("db",), example={"db": 0.06}, start={"db": 0.0}, fixed={"c_db": 0.01},

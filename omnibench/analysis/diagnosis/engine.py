@@ -49,7 +49,6 @@ from omnibench.analysis.diagnosis.robust_se import cluster_se
 from omnibench.analysis.least_squares import Parameters, param_bounds, param_value, with_params
 from omnibench.analysis.observations import Observations
 from omnibench.analysis.predictor import Predictor
-from omnibench.effects import driver
 from omnibench.effects.library import Effect
 
 if TYPE_CHECKING:
@@ -425,28 +424,21 @@ GROUND_TORQUES = ("a_r", "b_r", "C_r")
 
 
 def data_start(problem: Problem, current: ModelFit, effect: Effect) -> dict[str, float]:
-    """Start values ('effect.param' and the core parameters it trades against) that a closed form
-    gives from the data for `effect` in its form, {} when none does: the shifted deadband from the
-    sweep's voltage balance (`driver.deadband_start`: u_0 with R_a and k_e; the declared fit's
-    R_a took up the dead zone's offset, and from it the fit crept along the valley of u_0 with
-    R_a and the Coulomb term, every settle pass to its evaluation limit)."""
-    if effect.name != "driver_deadband" or "sweep" not in problem.procedures:
+    """Start values ('effect.param' and the core parameters it trades against) that the effect's
+    closed form (`Effect.sweep_start`) gives from the sweep for `effect` in its form, {} when it
+    has none or gives none. The shifted deadband's, from the sweep's voltage balance: the
+    declared fit's R_a took up the dead zone's offset, and from it the fit crept along the valley
+    of u_0 with R_a and the Coulomb term, every settle pass to its evaluation limit."""
+    if effect.sweep_start is None or "sweep" not in problem.procedures:
         return {}
-    t = problem.obs.table("sweep")
-    if not len(t) or not {"u", "omega", "current", "V_batt"} <= set(t.columns):
-        return {}
-    if "steady" in t.columns:
-        t = t[t["steady"].fillna(False).astype(bool)]
-    se = t["current_se"] if "current_se" in t.columns else np.full(len(t), np.nan)
-    got = driver.deadband_start(t["u"], t["omega"], t["current"], se, t["V_batt"],
-                                cut=float(effect.fixed.get("cut", 0.0)))
+    got = effect.sweep_start(problem.obs.table("sweep"), effect.fixed)
     if not got:
         return {}
-    out = {f"{effect.name}.u_0": got["u_0"], "R_a": got["R_a"], "k_e": got["k_e"]}
+    out = {(f"{effect.name}.{k}" if k in effect.fit else k): float(v) for k, v in got.items()}
     # the ground runs log no current: the current fit knows their roller and rolling friction only
     # through R_a x torque (on the README's deadband campaign R_a 3.51 with half of each), so
     # they keep that product
-    if "R_a" in current.values:
+    if "R_a" in current.values and "R_a" in got:
         k = current.values["R_a"] / got["R_a"]
         out.update({p: current.values[p] * k for p in GROUND_TORQUES if p in current.values})
     return out
