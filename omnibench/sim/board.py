@@ -427,6 +427,10 @@ class SimBoard:
         """The host's port speed: anything but the board's garbles both directions."""
         with self.lock:
             wrong = self.world.faults.wrong_baud or int(baudrate) != self.world.baudrate
+            if wrong and not self.to_host.wrong_baud and self.out:
+                # bytes not yet on the wire go out at the new speed too: the boot HELLO, encoded
+                # as the board powered up, reached a host that had opened at 9600 intact (CI)
+                self.out[:] = self.to_host.pass_bytes_garbled(len(self.out))
             self.to_host.wrong_baud = wrong
             self.to_board.wrong_baud = wrong
 

@@ -29,6 +29,10 @@ class FaultyWire:
         self.touched: list[int] = []
         self.record = False
 
+    def pass_bytes_garbled(self, n: int) -> bytes:
+        """What a receiver at the wrong speed reads for `n` bytes sent (see pass_bytes)."""
+        return bytes(self.rng.integers(1, 256, n, dtype=np.uint8))
+
     def pass_bytes(self, data: bytes) -> bytes:
         """What arrives at the other end when `data` is sent."""
         start = self.bytes_in
@@ -36,8 +40,7 @@ class FaultyWire:
         if self.wrong_baud:
             # A receiver at the wrong speed samples the wrong bits: unrelated bytes arrive,
             # about as many as were sent, with no 0x00 framing left intact.
-            noise = self.rng.integers(1, 256, len(data), dtype=np.uint8)
-            return bytes(noise)
+            return self.pass_bytes_garbled(len(data))
         if not self.enabled or not data:
             return data
         c = self.config

@@ -218,6 +218,9 @@ class PtyServer:
         if baud is not None and baud != self._baud:
             self._baud = baud
             self.board.set_host_baud(baud)
+            wire = getattr(self.board, "to_host", None)  # the firmware board garbles as it sends
+            if wire is not None and wire.wrong_baud and self.pty.pending:  # still to go out: at the new speed
+                self.pty.pending[:] = wire.pass_bytes_garbled(len(self.pty.pending))
 
     def _serve_ammeter(self) -> None:
         if self.ammeter is not None and self.ammeter_pty is not None:
