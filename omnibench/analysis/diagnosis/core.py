@@ -62,6 +62,11 @@ MAX_FITS = 6  # refits per round when the top_k all fail
 POLISH_NFEV = 60  # evaluations allowed when fitting the declared and each accepted model
 ZERO_SE = 2.0  # a candidate whose every fitted parameter is within this many SE of 0 is absent
 RELATIVE_SCREEN = 0.02  # nor below this fraction of the best candidate's (relative to threshold)
+#: nor when an adequate candidate fitted this round has a likelihood ratio this many times its
+#: first-order one: it could win only if its exact LR were that much above its linearised
+#: estimate (the README deadband campaign: driver_deadband LR 974, the three latencies' first-
+#: order 8-12, fitted 0.0-2.3 in 215 s of CPU). Refitted after all when nothing is added.
+DOMINANCE = 10.0
 CONFOUNDED = 1e-6  # share of a candidate's sensitivity left after the fitted parameters' directions
 PAIR_LEADS = 2  # best fitted candidates tried as the first of a pair when no single one is adequate
 PAIR_TOP = 3  # partners screened against each lead's fit and refitted with it
@@ -356,17 +361,23 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
                if p in e1 and _worse(base_err[p], e1[p])]
         return ("makes the held-out error worse beyond its noise in " + ", ".join(bad)) if bad else ""
 
-    for rnd in range(1, max_effects + 1):
-        if not pool and not core_params.candidates(problem, current):
+    rnd, lazy = 0, True
+    fits_done: dict[str, Any] = {}  # this round's candidate fits (name -> fit, form, margin), for its retry
+    while True:
+        if lazy:
+            rnd, fits_done = rnd + 1, {}
+        if rnd > max_effects or (not pool and not core_params.candidates(problem, current)):
             break
         n_sets = sum(len(e.fit) * max(len(e.forms), 1) for e in pool)
-        say(f"round {rnd}: screening {len(pool)} candidate effects ({n_sets} parameter sets to simulate)")
-        scr = _screen(problem, current, pool) if pool else None
+        if lazy:
+            say(f"round {rnd}: screening {len(pool)} candidate effects ({n_sets} parameter sets to simulate)")
+            scr = _screen(problem, current, pool) if pool else None
         m = len(pool) + len(core_params.candidates(problem, current))
         thr = {e.name: _lr_threshold(alpha / m, e.n_params) for e in pool}
         order = sorted(pool, key=lambda e: -scr.approx_lr[e.name] / thr[e.name])
         tried: list[Candidate] = []
         passing: list[Candidate] = []
+        deferred: list[Effect] = []  # not refitted: an adequate candidate's fitted LR dominates theirs
         fit_seconds: list[float] = []  # CPU seconds of each candidate fit this round (for the ETA)
         best_ratio = max((scr.approx_lr[e.name] / thr[e.name] for e in pool), default=0.0)
         # how many the screen sends to a full fit (the fallback may add more): for the progress line
@@ -380,20 +391,30 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
             # refit the top_k; when all of those fail, keep going down the ranking (up to MAX_FITS)
             fallback = not passing and top_k <= n_fitted < MAX_FITS
             leading = ratio >= RELATIVE_SCREEN * best_ratio
-            if ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION:
+            winner = _dominating(passing, scr.approx_lr[e.name]) if lazy else None
+            if ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION and winner is not None:
+                c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f}, not refitted: {winner.name}'s fitted "
+                            f"LR = {winner.lr:.1f} is over {DOMINANCE:.0f} times that")
+                say(f"round {rnd}: not fitting {e.name} ({c.reason})")
+                deferred.append(e)
+            elif ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION:
                 n_all = max(n_lead, n_fitted + 1)
-                say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {n_all}"
-                    + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "")
-                    + _eta(fit_seconds, n_all - n_fitted) + ")")
-                t_fit = time.process_time()
-                try:
-                    cf, c.form, c.form_margin = _fit_forms(problem, current, e, scr.estimate[e.name])
-                except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
-                    c.reason = f"fit failed ({exc.__class__.__name__})"
+                if e.name not in fits_done:
+                    say(f"round {rnd}: fitting {e.name} (candidate {n_fitted + 1} of {n_all}"
+                        + (f", {len(e.forms)} forms" if len(e.forms) > 1 else "")
+                        + _eta(fit_seconds, n_all - n_fitted) + ")")
+                    t_fit = time.process_time()
+                    try:
+                        fits_done[e.name] = _fit_forms(problem, current, e, scr.estimate[e.name], thr[e.name])
+                    except (np.linalg.LinAlgError, ValueError) as exc:  # a numerically hopeless start
+                        fits_done[e.name] = exc
+                    finally:
+                        fit_seconds.append(time.process_time() - t_fit)
+                if isinstance(fits_done[e.name], Exception):
+                    c.reason = f"fit failed ({fits_done[e.name].__class__.__name__})"
                     tried.append(c)
                     continue
-                finally:
-                    fit_seconds.append(time.process_time() - t_fit)
+                cf, c.form, c.form_margin = fits_done[e.name]
                 if evaluate(c, [e.with_form(c.form)], cf, alpha / m):
                     passing.append(c)
             else:
@@ -427,7 +448,8 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
 
         def best_pair(adequate_only: bool = True) -> list[Candidate]:
             if not pairs:
-                pairs.append(_best_pairs(problem, current, leads, pool, evaluate, alpha, m, say, rnd)
+                singles = {n: f[0] for n, f in fits_done.items() if not isinstance(f, Exception) and not EFFECTS[n].forms}
+                pairs.append(_best_pairs(problem, current, leads, pool, evaluate, alpha, m, say, rnd, singles)
                              if leads else ([], []))
             pair = pairs[0][0 if adequate_only else 1]
             return [] if pair and pair[0].reason else pair  # a pair refused after its final fit: once
@@ -453,9 +475,16 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
                 c.reason = ("does not remove the structure it acts on: still " + "; ".join(
                     _where(c.struct, k) for k in c.remaining) + " with it (an effect of another form, or a "
                     "second effect, is at work: left unexplained)")
+        if not added and deferred and lazy:
+            # the one that dominated them was refused after its final fit: the round again, with
+            # every candidate the screen sends to a fit refitted (the fits already made are kept)
+            say(f"round {rnd}: nothing added; fitting the candidates left out: {', '.join(e.name for e in deferred)}")
+            lazy = False
+            continue
         if not added:
             rejected += tried
             break
+        lazy = True
         best = added[0]
         for c in passing:
             if any(c is a for a in added):
@@ -529,6 +558,13 @@ def _eta(seconds: Sequence[float], remaining: int) -> str:
 
 def _mmss(s: float) -> str:
     return f"{int(s // 60)}:{int(s % 60):02d}"
+
+
+def _dominating(passing: Sequence[Candidate], approx_lr: float) -> Candidate | None:
+    """An adequate library candidate fitted this round whose likelihood ratio is over DOMINANCE
+    times `approx_lr` (a candidate's first-order LR), if any: that candidate is not refitted."""
+    return next((c for c in passing if not c.remaining and not core_params.is_core(c.name)
+                 and c.lr > DOMINANCE * max(approx_lr, 0.0)), None)
 
 
 def _prefer_nested(passing: list[Candidate], p_needed: float) -> list[Candidate]:
@@ -642,13 +678,14 @@ def _screen(problem: engine.Problem, fit: engine.ModelFit, pool: Sequence[Effect
     return out
 
 
-def _fit_forms(problem: engine.Problem, current: engine.ModelFit, e: Effect,
-               estimate: Mapping[str, float]) -> tuple[engine.ModelFit, str, dict[str, float]]:
-    """Refit `e` in each of its forms: (best fit, its form, other form -> AIC above it)."""
+def _fit_forms(problem: engine.Problem, current: engine.ModelFit, e: Effect, estimate: Mapping[str, float],
+               needed: float | None = None) -> tuple[engine.ModelFit, str, dict[str, float]]:
+    """Refit `e` in each of its forms: (best fit, its form, other form -> AIC above it); needed:
+    the likelihood ratio it must reach (engine.hopeless)."""
     fits = []
     for form in (list(e.forms) or [""]):
         try:
-            fits.append((engine.fit_candidate(problem, current, e.with_form(form), estimate), form))
+            fits.append((engine.fit_candidate(problem, current, e.with_form(form), estimate, needed=needed), form))
         except (np.linalg.LinAlgError, ValueError):
             if len(e.forms) <= 1:
                 raise
@@ -715,14 +752,15 @@ def _instead_of_core(c: Candidate, passing: Sequence[Candidate], leads: Sequence
 
 
 def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[Candidate], pool: Sequence[Effect],
-                evaluate: Callable, alpha: float, m: int, say: Callable[[str], None], rnd: int
-                ) -> tuple[list[Candidate], list[Candidate]]:
+                evaluate: Callable, alpha: float, m: int, say: Callable[[str], None], rnd: int,
+                singles: Mapping[str, engine.ModelFit] | None = None) -> tuple[list[Candidate], list[Candidate]]:
     """Two effects at once, when no single one is adequate. Each of the PAIR_LEADS best fitted
     candidates is taken as a provisional model, the others are screened against what it leaves,
     and it is refitted together with the PAIR_TOP most promising of them. A pair is added when it
     earns its place, removes the structure it acts on, and each effect is significant given the
     other. Returns the best such pair (its two candidates, sharing the pair's fit, or []) and the
-    best that passes all but the structure (what competes with a core re-estimate)."""
+    best that passes all but the structure (what competes with a core re-estimate). singles: this
+    round's fits of one effect alone (effects of one form), reused for "the first given the second"."""
     best: tuple[float, list[Candidate]] | None = None
     best_any: tuple[float, list[Candidate]] | None = None
     done: set[frozenset] = set()
@@ -753,10 +791,12 @@ def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[
             # the second must matter given the first, and the first given the second
             if lead.fit.deviance - cf.deviance < _lr_threshold(alpha / m, e2.n_params):
                 continue
-            try:
-                alone = engine.fit_candidate(problem, current, e2, scr.estimate[e2.name])
-            except (np.linalg.LinAlgError, ValueError):
-                alone = None
+            alone = (singles or {}).get(e2.name)
+            if alone is None:
+                try:
+                    alone = engine.fit_candidate(problem, current, e2, scr.estimate[e2.name])
+                except (np.linalg.LinAlgError, ValueError):
+                    alone = None
             if alone is not None and alone.deviance - cf.deviance < _lr_threshold(alpha / m, e1.n_params):
                 continue
             if pc.remaining:

@@ -35,7 +35,7 @@ the same normalisation as `fitting.error_by_procedure`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -190,10 +190,12 @@ SETTLE_PASSES = 6
 
 
 def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: int = 20, passes: int = SETTLE_PASSES,
-              scale: Mapping[str, float] | None = None) -> ModelFit:
+              scale: Mapping[str, float] | None = None,
+              settled_enough: Callable[[float, float], bool] | None = None) -> ModelFit:
     """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param),
     re-weighting each group by its own residual scale until every scale settles within 2 % (at
-    most `passes` weighted fits).
+    most `passes` weighted fits), or until `settled_enough(deviance before the pass, after it)`
+    says further passes cannot change what the fit is for (a candidate that cannot pass).
 
     `robot` is the start point and holds every fixed parameter."""
     free = list(free)
@@ -228,6 +230,7 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
     f0 = predicted(x)
     s = dict(scale) if scale else problem.scales(f0)
     converged = True
+    dev_before = problem.deviance(f0)
     for _ in range(passes):
         w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
 
@@ -249,6 +252,10 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
             s = s_new
             break
         s = s_new
+        dev_after = problem.deviance(f0)
+        if settled_enough is not None and settled_enough(dev_before, dev_after):
+            break
+        dev_before = dev_after
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
@@ -371,12 +378,13 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
 
 
 def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
-                  *, max_nfev: int = 15) -> ModelFit:
+                  *, max_nfev: int = 15, needed: float | None = None) -> ModelFit:
     """Refit the current model's parameters together with `effect`'s, starting from the screen's
     estimate (clipped into the parameter bounds) or the effect's `start`, and from each of the
     effect's `restarts`: the fit of least deviance. Where a closed form gives the effect's values
     from the data (`data_start`), the start is that one, with one Gauss-Newton step for the
-    parameters it leaves, if it fits the data better than the screen's (three simulations)."""
+    parameters it leaves, if it fits the data better than the screen's (three simulations).
+    needed: the likelihood ratio the candidate must reach; settling stops once it cannot (`hopeless`)."""
     start = dict(effect.start)
     if estimate:
         for p, v in estimate.items():
@@ -412,11 +420,31 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
     best = None
     for st in _restarts(effect, start):
         robot = _robot_with_effect(base, effect, st)
-        f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=scale)
+        f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=scale,
+                      settled_enough=None if needed is None else hopeless(current.deviance, needed))
         if best is None or f.deviance < best.deviance:
             best = f
     assert best is not None, "_restarts yields the start point at least"
     return best
+
+
+#: A candidate's settle passes stop when its likelihood ratio so far, plus HOPELESS_GAIN times the
+#: last pass's deviance drop (the passes' drops shrink: re-weighting converges), stays below
+#: HOPELESS_FRACTION of the ratio it needs: the passes cannot make it pass (README campaign's
+#: latencies on the deadband runs: LR 0.0-2.3 of 19-24 needed after pass one; passes two and three
+#: cost 23-62 s of CPU each and moved the LR by < 0.1).
+HOPELESS_GAIN = 2.0
+HOPELESS_FRACTION = 0.5
+
+
+def hopeless(reference: float, needed: float) -> Callable[[float, float], bool]:
+    """fit_model's `settled_enough` for a candidate against the current model's deviance
+    `reference`: True when LR + HOPELESS_GAIN x (the pass's drop, from at most `reference`)
+    < HOPELESS_FRACTION x `needed`."""
+    def done(before: float, after: float) -> bool:
+        gain = max(min(before, reference) - after, 0.0)
+        return (reference - after) + HOPELESS_GAIN * gain < HOPELESS_FRACTION * needed
+    return done
 
 
 #: the ground's torque terms (roller-axis friction, rolling resistance): no current is logged where they act

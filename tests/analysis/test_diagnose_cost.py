@@ -1,0 +1,101 @@
+"""What diagnosis does not spend its time on, and that skipping it leaves the answer (issue 34).
+
+A candidate whose first-order LR a fitted, adequate candidate's exact LR dominates is not refitted
+(core.DOMINANCE), unless that one is refused at its final fit; a candidate fit stops re-weighting
+once it cannot reach the ratio it needs (engine.hopeless).
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from omnibench.analysis.diagnosis import core, diagnose, engine
+from omnibench.analysis.diagnosis.campaign import REVEALING, CampaignSpec
+from omnibench.analysis.diagnosis.campaign import campaign as _campaign
+from omnibench.effects import EFFECTS
+
+
+def test_hopeless_counts_the_ratio_so_far_and_twice_the_last_pass_gain():
+    stop = engine.hopeless(reference=100.0, needed=20.0)  # must reach LR 20: give up below 10
+    assert stop(100.0, 99.0)  # LR 1 + 2 x 1 = 3
+    assert not stop(100.0, 95.0)  # LR 5 + 2 x 5 = 15
+    assert stop(97.0, 96.0)  # a later pass: LR 4 + 2 x 1 = 6
+    assert not stop(93.0, 92.0)  # LR 8 + 2 x 1 = 10
+    # a start worse than the current model: its first pass's gain counts from the current model only
+    assert stop(130.0, 99.0)
+    assert not stop(101.0, 91.0)  # LR 9 + 2 x 9
+
+
+def test_settle_passes_stop_when_the_fit_says_it_has_settled_enough(omnibot, monkeypatch):
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    obs = _campaign(omnibot, CampaignSpec(("sweep",)), {}, seed=3, generator="model")
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    calls: list[tuple[float, float]] = []
+    passes = {"n": 0}
+    real = engine.optimize.least_squares
+
+    def counted(*a, **k):
+        passes["n"] += 1
+        return real(*a, **k)
+
+    monkeypatch.setattr(engine.optimize, "least_squares", counted)
+    bad_scales = {g: 1e3 for g in problem.groups}  # far from the residual's: the scales cannot settle in one pass
+    engine.fit_model(problem, start, free, max_nfev=4, passes=3, scale=bad_scales)
+    assert passes["n"] > 1
+    passes["n"] = 0
+    fit = engine.fit_model(problem, start, free, max_nfev=4, passes=3, scale=bad_scales,
+                           settled_enough=lambda before, after: calls.append((before, after)) or True)
+    assert passes["n"] == 1 and len(calls) == 1
+    before, after = calls[0]
+    assert after == pytest.approx(fit.deviance) and before >= after  # a pass never raises the deviance
+
+
+def test_a_dominated_candidate_is_not_refitted_unless_the_winner_is_refused(omnibot, monkeypatch):
+    """per_wheel_friction's world: per_wheel_latency's first-order LR (~62) is far below the
+    friction's fitted LR (~1800): not refitted, and said so. When the friction is refused at its
+    final fit, the round is done again with it refitted."""
+    obs = _campaign(omnibot, REVEALING["per_wheel_friction"], EFFECTS["per_wheel_friction"].world(), seed=11,
+                    generator="independent")
+    said: list[str] = []
+    d = diagnose(omnibot, obs, progress=said.append)
+    assert [c.name for c in d.selected] == ["per_wheel_friction"]
+    lat = next(c for c in d.rejected if c.name == "per_wheel_latency" and c.round == 1)
+    assert not lat.fitted and math.isnan(lat.lr)
+    assert "not refitted" in lat.reason and "per_wheel_friction" in lat.reason
+    winner = d.selected[0]
+    assert winner.lr > core.DOMINANCE * lat.approx_lr
+    assert any("not fitting per_wheel_latency" in m for m in said)
+
+    real = core._polished
+    refused = {"n": 0}
+
+    def refuse_once(cands, *a, **k):
+        if refused["n"] == 0:
+            refused["n"] += 1
+            cands[0].reason = "refused by the test"
+            return []
+        return real(cands, *a, **k)
+
+    monkeypatch.setattr(core, "_polished", refuse_once)
+    said.clear()
+    d2 = diagnose(omnibot, obs, progress=said.append)
+    assert any("fitting the candidates left out: per_wheel_latency" in m for m in said)
+    lat2 = next(c for c in d2.rejected if c.name == "per_wheel_latency" and c.round == 1)
+    assert lat2.fitted and "not refitted" not in lat2.reason
+    # the friction's fit is kept from the first pass of the round, and added at the second polish
+    assert [c.name for c in d2.selected] == ["per_wheel_friction"]
+    assert d2.selected[0].values == pytest.approx(d.selected[0].values)
+
+
+def test_dominating_needs_an_adequate_library_candidate():
+    fitted = core.Candidate("per_wheel_friction", 1, 500.0, fitted=True, lr=1800.0)
+    assert core._dominating([fitted], 62.0) is fitted
+    assert core._dominating([fitted], 200.0) is None  # 1800 < 10 x 200
+    leaves = core.Candidate("per_wheel_friction", 1, 500.0, fitted=True, lr=1800.0, remaining=[("sweep/omega", "speed")])
+    assert core._dominating([leaves], 62.0) is None  # not adequate: pairs may need the others fitted
+    core_name = next(iter(core.core_params.CORE_CANDIDATES))
+    assert core._dominating([core.Candidate(core_name, 1, 0.0, fitted=True, lr=1e6)], 1.0) is None
