@@ -49,34 +49,39 @@ def sawtooth_cov(d: np.ndarray, sigma: np.ndarray | float = 0.0) -> np.ndarray:
     # run and wheel, twice per fit: numpy's 24 terms x 8 array temporaries took half the CPU of
     # `diagnose --loro` on the 2019 logs)
     _sawtooth_damped(np.ascontiguousarray(d).reshape(-1), np.ascontiguousarray(sigma).reshape(-1), out.reshape(-1),
-                     _FOURIER_DENOMINATORS)
+                     FOURIER_DENOMINATORS)
     return out
 
 
 #: 2 pi^2 n^2, n = 1..FOURIER_TERMS: the sawtooth covariance's Fourier terms are cos(2 pi n d) over these
-_FOURIER_DENOMINATORS = np.array([2.0 * math.pi ** 2 * n * n for n in range(1, FOURIER_TERMS + 1)])
+FOURIER_DENOMINATORS = np.array([2.0 * math.pi ** 2 * n * n for n in range(1, FOURIER_TERMS + 1)])
 
 
 @njit(cache=True)
 def _sawtooth_damped(d: np.ndarray, sigma: np.ndarray, out: np.ndarray, denominator: np.ndarray) -> None:
-    """sawtooth_cov element by element: the closed form minus its first FOURIER_TERMS Fourier terms
-    damped by exp(-2 pi^2 n^2 sigma^2); cos(2 pi n d) by the angle-addition recurrence and the
-    damping q^(n^2) by q^((n+1)^2) = q^(n^2) q^(2n+1): three transcendental calls per element, not 72."""
-    two_pi2 = 2.0 * math.pi ** 2
+    """sawtooth_cov element by element (`sawtooth_damped_one`)."""
     for i in range(d.size):
-        di = d[i]
-        f = di - math.floor(di)
-        o = 1.0 / 12.0 - 0.5 * f * (1.0 - f)
-        c1, s1 = math.cos(2.0 * math.pi * di), math.sin(2.0 * math.pi * di)
-        cn, sn = c1, s1
-        q = math.exp(-two_pi2 * sigma[i] ** 2)
-        q2 = q * q
-        pn, rn = q, q * q2
-        for n in range(denominator.size):
-            o -= cn * (1.0 - pn) / denominator[n]
-            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
-            pn, rn = pn * rn, rn * q2
-        out[i] = o
+        out[i] = sawtooth_damped_one(d[i], sigma[i] ** 2, denominator)
+
+
+@njit(cache=True)
+def sawtooth_damped_one(d: float, sigma2: float, denominator: np.ndarray) -> float:
+    """sawtooth_cov of one angle distance d (counts) known to variance sigma2 (counts^2): the
+    closed form minus its first Fourier terms (cos(2 pi n d) / denominator[n-1]) damped by
+    exp(-2 pi^2 n^2 sigma2); cos(2 pi n d) by the angle-addition recurrence and the damping
+    q^(n^2) by q^((n+1)^2) = q^(n^2) q^(2n+1): three transcendental calls, not 72."""
+    f = d - math.floor(d)
+    o = 1.0 / 12.0 - 0.5 * f * (1.0 - f)
+    c1, s1 = math.cos(2.0 * math.pi * d), math.sin(2.0 * math.pi * d)
+    cn, sn = c1, s1
+    q = math.exp(-2.0 * math.pi ** 2 * sigma2)
+    q2 = q * q
+    pn, rn = q, q * q2
+    for n in range(denominator.size):
+        o -= cn * (1.0 - pn) / denominator[n]
+        cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        pn, rn = pn * rn, rn * q2
+    return o
 
 
 def quantised_slope(t: np.ndarray, omega: float, counts_per_rev: float, white: float = 0.0,
