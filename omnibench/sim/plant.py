@@ -7,7 +7,8 @@ milliseconds per call, far more than the physics of a 5 ms telemetry period.
 
 from __future__ import annotations
 
-import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numba
 import numpy as np
@@ -15,14 +16,21 @@ import numpy as np
 from omnibench.model import Scenario, Simulator
 from omnibench.model.scenario import operator_change
 
-_single = threading.local()
 
-
-def _single_threaded() -> None:
-    """numba.set_num_threads(1) once per calling thread (the setting is thread-local)."""
-    if not getattr(_single, "done", False):
-        numba.set_num_threads(1)
-        _single.done = True
+@contextmanager
+def _one_thread() -> Iterator[None]:
+    """numba.set_num_threads(1) for the calling thread while the plant integrates, then back to
+    what it was: the setting is thread-local, and the thread that drives an in-process board
+    (`sim://`) goes on to analyse the runs (a campaign's fit and diagnose ran on one core)."""
+    previous = numba.get_num_threads()
+    if previous == 1:
+        yield
+        return
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 #: With the motors off and every wheel slower than REST_TOL rad/s, spans longer than REST_SKIP_S
@@ -39,9 +47,9 @@ class Plant:
     """
 
     def __init__(self, robot, scenario: Scenario, dt: float = 1e-3) -> None:
-        _single_threaded()
         self.robot = robot
-        self.sim = Simulator(robot, scenario, dt=dt)
+        with _one_thread():
+            self.sim = Simulator(robot, scenario, dt=dt)
         self.t0 = 0.0  # board time at which the simulator's t was 0
         self.state = self.sim.state
 
@@ -59,8 +67,8 @@ class Plant:
             self.t0 += dur
             return
         if dur >= 0.5 * self.sim.dt:
-            _single_threaded()  # see the module docstring
-            self.state = self.sim.advance(duties, dur)
+            with _one_thread():  # see the module docstring
+                self.state = self.sim.advance(duties, dur)
 
     def set_world(self, mode: str | None = None, payload: float | None = None,
                   wheel_mass: tuple[float, float, float, float] | None = None) -> None:

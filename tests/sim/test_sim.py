@@ -186,3 +186,31 @@ def test_cli_sim_serve_bad_input_is_one_line() -> None:
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "mode" in r.stderr
     r = _cli("sim", "serve", "--set", "novalue")
     assert r.returncode == 2 and "KEY=VALUE" in r.stderr
+
+
+def test_driving_the_simulated_robot_leaves_the_hosts_threads_for_the_analysis() -> None:
+    """The simulated plant integrates one trajectory on one thread, and sets numba's (thread-local)
+    thread count for it; the thread that drove `sim://` then fits the runs. It must get every
+    core back: a campaign's fit and diagnose ran on one after its procedures."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread on this machine: nothing to give back")
+    numba.set_num_threads(2)
+    name = f"t-{uuid.uuid4().hex[:6]}"
+    with Board.open(f"sim://?name={name}") as b:
+        sim = registry.get(name)
+        inside: list[int] = []
+        advance = sim.plant.sim.advance
+
+        def counted(*a, **k):
+            inside.append(numba.get_num_threads())
+            return advance(*a, **k)
+
+        sim.plant.sim.advance = counted
+        b.configure(telemetry_hz=100)
+        b.set_duties([0.4, 0.4, 0.4, 0.4])
+        assert b.wait(0.3)
+        b.stop()
+    assert inside and set(inside) == {1}  # one trajectory: no thread pool woken per telemetry period
+    assert numba.get_num_threads() == 2
