@@ -51,7 +51,7 @@ import tempfile
 import textwrap
 from pathlib import Path
 
-from omnibench.model import context, lanes
+from omnibench.model import context, fpu, lanes  # noqa: F401  (fpu: the generated kernel imports it)
 from omnibench.model.terms import HOOKS, Layout, layout
 from omnibench.resources import cache_root
 
@@ -458,6 +458,7 @@ _TEMPLATE = '''\
 import math
 import numpy as np
 from numba import njit, prange
+from omnibench.model.fpu import flush_subnormals, restore_fpu
 {imports}
 
 NX = {nx}
@@ -515,11 +516,14 @@ def _groups(RV, EN, SUB):
 @njit(cache=True)
 def _run_group(bs, n_valid, paper, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every,
                REC, XF):
-    """One lane group, with the lean copy of the loop when only the paper's terms are on."""
+    """One lane group, with the lean copy of the loop when only the paper's terms are on;
+    subnormal doubles flushed to zero meanwhile on this thread (omnibench.model.fpu)."""
+    fpu_state = flush_subnormals()
     if paper:
         _group_paper(bs, n_valid, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
     else:
         _group(bs, n_valid, X0, RV, P, EN, Rm, Sm, Minv, M, cmd_idx, U, t0, dt, SUB, method, rec_every, REC, XF)
+    restore_fpu(fpu_state)
 
 
 @njit(cache=True, parallel=True)
@@ -888,7 +892,7 @@ def _digest(src: str, lay: Layout) -> str:
     digest.update(inspect.getsource(sys.modules[__name__]).encode())
     # numba's cache of the generated module does not see changes in the code it imports, so
     # the key covers the whole source of every module a hook comes from (helpers included)
-    modules = {"omnibench.model.smooth", "omnibench.model.context"}
+    modules = {"omnibench.model.smooth", "omnibench.model.context", "omnibench.model.fpu"}
     for term in lay.terms:
         for fn in term.hooks.values():
             modules.add(getattr(fn, "py_func", fn).__module__)

@@ -171,6 +171,25 @@ def test_stops_cleanly_at_zero_duty(method, mode):
     assert np.all(np.isfinite(df[cols].to_numpy()))
 
 
+@pytest.mark.parametrize("batch", [1, 3 * kernel.WIDTH])  # run_serial, then `run` over the cores
+def test_a_coast_to_rest_records_no_subnormal_and_the_callers_fpu_is_untouched(batch):
+    """A robot coasting to rest on the ground: its speeds decay through subnormal doubles, which
+    x86 computes ~100x slower (4/5 of an energy run's kernel time before omnibench.model.fpu).
+    The kernel flushes them to zero (its recorded numbers hold none) and gives the calling thread
+    its own FPU control register back."""
+    from omnibench.model.fpu import X86, mxcsr
+
+    if not X86:
+        pytest.skip("flush-to-zero is set only on x86-64 (the MXCSR register)")
+    before = mxcsr()
+    res = simulate_batch([default_robot()] * batch, Scenario(mode="ground"), [0.0, 0.5],
+                         np.array([[0.5, 0.4, 0.5, 0.4], [0.0, 0.0, 0.0, 0.0]]), 1.5, adaptive=True)
+    a = res.array
+    assert np.abs(res.signal("v1")[:, -1]).max() < 1e-6 < np.abs(res.signal("v1")[:, 400]).min()  # coasted to rest
+    assert not np.any((a != 0.0) & (np.abs(a) < np.finfo(float).tiny))
+    assert mxcsr() & 0x8040 == before & 0x8040  # FTZ and DAZ as the caller had them
+
+
 def test_substeps_respect_each_methods_stability_limit():
     robot = default_robot()
     for scenario in (Scenario(), Scenario(mode="upside_down"), Scenario(payload=5.0)):
