@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from omnibench.analysis.diagnosis import core_params, engine, structure, transient
+from omnibench.analysis.diagnosis.probabilities import chi2_isf
 from omnibench.analysis.observations import Observations
 from omnibench.effects.library import EFFECTS, Effect
 from omnibench.errors import UserError
@@ -824,9 +825,7 @@ def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[
 
 
 def _lr_threshold(p: float, q: int) -> float:
-    from scipy import stats
-
-    return float(stats.chi2.isf(p, q))
+    return chi2_isf(p, q)
 
 
 def _exposing_finding(before: Sequence[structure.Finding], n_before: int, after: tuple[list, int]):

@@ -41,10 +41,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, stats
+from scipy import optimize
 
 from omnibench.analysis import least_squares
 from omnibench.analysis.diagnosis.encoder_se import encoder_se
+from omnibench.analysis.diagnosis.probabilities import chi2_sf
 from omnibench.analysis.diagnosis.robust_se import cluster_se
 from omnibench.analysis.least_squares import Parameters, param_bounds, param_value, with_params
 from omnibench.analysis.observations import Observations
@@ -498,7 +499,7 @@ def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect
 def lr_test(base: ModelFit, alt: ModelFit, q: int) -> tuple[float, float]:
     """(LR statistic, p-value) of a nested model with q extra parameters."""
     lr = max(base.deviance - alt.deviance, 0.0)
-    return lr, float(stats.chi2.sf(lr, q))
+    return lr, chi2_sf(lr, q)
 
 
 # ------------------------------------------------------------------------- held-out error

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
+
+from omnibench.analysis.diagnosis.probabilities import f_sf, norm_cdf
 
 ALPHA = 1e-3
 MAX_BINS = 8
@@ -115,7 +116,7 @@ def _runs_p(z_sorted: np.ndarray) -> float:
     var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n * n * (n - 1))
     if var <= 0:
         return 1.0
-    return float(stats.norm.cdf((runs - mu) / math.sqrt(var)))
+    return norm_cdf((runs - mu) / math.sqrt(var))
 
 
 SPEED_SIGNALS = ("omega", "w")
@@ -167,7 +168,7 @@ def analyse(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group:
             T = float(np.sum(zb[ok] ** 2))
             dof = int(ok.sum())
             # with few entries per bin use the F distribution (the scatter is estimated)
-            p = float(stats.f.sf(T / dof, dof, dof_w))
+            p = f_sf(T / dof, dof, dof_w)
             where = []
             for k in np.argsort(-np.abs(zb)):
                 if not ok[k] or abs(zb[k]) < 3.0:

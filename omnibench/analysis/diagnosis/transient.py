@@ -19,8 +19,8 @@ widened by the rounding covariance of its samples; without, the samples count as
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
+from omnibench.analysis.diagnosis.probabilities import f_sf
 from omnibench.analysis.diagnosis.structure import Finding
 
 SAMPLES = 2  # speed samples after a duty change
@@ -100,7 +100,7 @@ def findings(table, residual: np.ndarray, z: np.ndarray, used: np.ndarray, group
                 and w is not None else np.ones(len(cells)))
         zb = means / np.sqrt(s2 / counts * infl)
         T = float(np.sum(zb ** 2))
-        p = float(stats.f.sf(T / len(cells), len(cells), dof_w))
+        p = f_sf(T / len(cells), len(cells), dof_w)
         where = []
         for k in np.argsort(-np.abs(zb))[:4]:
             if abs(zb[k]) < 3.0:
