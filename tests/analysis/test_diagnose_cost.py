@@ -99,3 +99,29 @@ def test_dominating_needs_an_adequate_library_candidate():
     assert core._dominating([leaves], 62.0) is None  # not adequate: pairs may need the others fitted
     core_name = next(iter(core.core_params.CORE_CANDIDATES))
     assert core._dominating([core.Candidate(core_name, 1, 0.0, fitted=True, lr=1e6)], 1.0) is None
+
+
+def test_a_pair_fit_stops_settling_once_it_cannot_beat_its_lead_effect(omnibot, monkeypatch):
+    """A pair must beat its lead effect's own fit by the second effect's LR threshold: its settle
+    passes stop by `hopeless` against the lead's deviance (the 2019 logs' round 2: pairs whose
+    second effect fitted to zero, 20-45 s of CPU each)."""
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    obs = _campaign(omnibot, CampaignSpec(("sweep",)), {}, seed=3, generator="model")
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    current = engine.fit_model(problem, start, free, max_nfev=4, passes=1)
+    seen: list = []
+    real = engine.fit_model
+
+    def spy(*a, **k):
+        seen.append(k.get("settled_enough"))
+        return real(*a, **{**k, "max_nfev": 2, "passes": 1})
+
+    monkeypatch.setattr(engine, "fit_model", spy)
+    pair = [EFFECTS["quadratic_drag"], EFFECTS["battery_resistance"]]
+    engine.fit_candidates(problem, current, pair, [{}, {}])
+    engine.fit_candidates(problem, current, pair, [{}, {}], needed=(100.0, 20.0))
+    assert seen[0] is None
+    stop = seen[1]
+    assert stop(100.0, 99.0) and not stop(100.0, 95.0)  # as engine.hopeless(100, 20)

@@ -779,19 +779,24 @@ def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[
             done.add(key)
             e1 = EFFECTS[lead.name].with_form(lead.form)
             say(f"round {rnd}: fitting the pair {lead.name} + {e2.name}")
+            # the second must matter given the first: its settle passes stop once it cannot
+            need2 = _lr_threshold(alpha / m, e2.n_params)
             try:
                 cf = engine.fit_candidates(problem, current, [e1, e2],
-                                           [lead.values, {f"{e2.name}.{k}": v for k, v in scr.estimate[e2.name].items()}])
+                                           [lead.values, {f"{e2.name}.{k}": v for k, v in scr.estimate[e2.name].items()}],
+                                           needed=(lead.fit.deviance, need2))
             except (np.linalg.LinAlgError, ValueError):
+                continue
+            if lead.fit.deviance - cf.deviance < need2:
+                say(f"round {rnd}: the pair {lead.name} + {e2.name}: {e2.name} given {lead.name} reaches LR "
+                    f"{lead.fit.deviance - cf.deviance:.1f} of the {need2:.1f} it needs")
                 continue
             pc = Candidate(f"{lead.name}+{e2.name}", rnd, float("nan"))
             if not evaluate(pc, [e1, e2], cf, alpha / m):
                 say(f"round {rnd}: the pair {lead.name} + {e2.name} does not earn its place "
                     f"(AIC drop {pc.aic_drop:.1f}): {pc.reason}")
                 continue
-            # the second must matter given the first, and the first given the second
-            if lead.fit.deviance - cf.deviance < _lr_threshold(alpha / m, e2.n_params):
-                continue
+            # and the first given the second
             alone = (singles or {}).get(e2.name)
             if alone is None:
                 try:

@@ -483,9 +483,12 @@ def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, floa
 
 
 def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect],
-                   starts: Sequence[Mapping[str, float]], *, max_nfev: int = 20) -> ModelFit:
+                   starts: Sequence[Mapping[str, float]], *, max_nfev: int = 20,
+                   needed: tuple[float, float] | None = None) -> ModelFit:
     """Refit the current model's parameters together with several effects at once (a pair),
-    each starting from `starts` (values by 'effect.param', e.g. their single refits)."""
+    each starting from `starts` (values by 'effect.param', e.g. their single refits).
+    needed: (reference deviance, likelihood ratio the pair must reach below it); settling
+    stops once it cannot (`hopeless`): a pair must beat its lead effect's own fit."""
     robot = current.robot
     free = list(current.free)
     for eff, st in zip(effects, starts):
@@ -493,7 +496,8 @@ def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect
         vals.update({k.split(".", 1)[1]: v for k, v in st.items() if k.startswith(eff.name + ".")})
         robot = _robot_with_effect(robot, eff, vals)
         free += [f"{eff.name}.{p}" for p in eff.fit]
-    return fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale)
+    return fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale,
+                     settled_enough=None if needed is None else hopeless(*needed))
 
 
 def lr_test(base: ModelFit, alt: ModelFit, q: int) -> tuple[float, float]:
