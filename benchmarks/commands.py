@@ -116,6 +116,16 @@ start's own scales): 11 of 11 the same answer; dz's final code alone: the same s
 values (u_0 0.03014 +- 0.00011, 0.02988 +- 0.00012; cut 0.08046 +- 0.0036, 0.07836 +- 0.0030;
 clean 3/3 nothing added). Wall seconds there are too noisy at this load to compare.
 
+Issue 34, subnormal doubles (main 52bf8a3 -> c9b72a4; one thread, CPU): a speed decaying to rest
+passes through subnormal doubles, ~100x slower on x86; the kernel now runs each lane group with
+FTZ/DAZ set (omnibench/model/fpu.py). The clean campaign's four energy runs under one parameter
+set 1.20 -> 0.25 s; the fixed-count kernel's cost had jumped 3x between 7 and 8 sub-steps. End to
+end: campaign 1:28 -> 0:45.3, diagnose 58 -> 23.4 s, the deadband example 5:37 -> 2:44.7, fit
+9.1 -> 8.9 s (its ground runs had few subnormals), `diagnose --loro` 10:05 -> 9:51.8 (upside down,
+exact stick: none), independent 2:19 -> 2:18.0. Same model file; benchmarks/diagnose.py --before
+52bf8a3 --seeds 1 --clean 2: 29 of 29 the same; benchmarks/real_data.py --before 52bf8a3: the
+same effects, values, SEs and leave-one-run-out table.
+
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
     .venv/bin/python benchmarks/commands.py --threads 0           # all cores (numba's default)
