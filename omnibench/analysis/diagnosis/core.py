@@ -782,8 +782,10 @@ def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[
             # the second must matter given the first: its settle passes stop once it cannot
             need2 = _lr_threshold(alpha / m, e2.n_params)
             try:
-                cf = engine.fit_candidates(problem, current, [e1, e2],
-                                           [lead.values, {f"{e2.name}.{k}": v for k, v in scr.estimate[e2.name].items()}],
+                # from the lead's own fit (its effect and the core parameters already moved
+                # there): the pair's passes start one effect from their end, not two
+                cf = engine.fit_candidates(problem, lead.fit, [e2],
+                                           [{f"{e2.name}.{k}": v for k, v in scr.estimate[e2.name].items()}],
                                            needed=(lead.fit.deviance, need2))
             except (np.linalg.LinAlgError, ValueError):
                 continue
