@@ -232,31 +232,46 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
     s = dict(scale) if scale else problem.scales(f0)
     converged = True
     dev_before = problem.deviance(f0)
-    for _ in range(passes):
+    frozen: np.ndarray | None = None  # a settling pass's Jacobian: the differences where the last pass ended
+    for k in range(passes):
         w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
+        # After an exact pass that left the scales unsettled, the passes that only settle the
+        # weights take their steps on the differences where that pass ended (the weights move,
+        # the point barely): one simulation per step instead of a Jacobian. Once the scales
+        # settle, an exact pass from there ends the fit (or starts the next round of settling),
+        # so the fit ends, as before, at an optimum of its final weights with settled scales;
+        # the last pass allowed is always exact.
+        settling = frozen is not None and k < passes - 1
 
         def resid(xv: np.ndarray) -> np.ndarray:
             return ((problem.y - predicted(xv)) * w)[used]
 
         def jac(xv: np.ndarray) -> np.ndarray:
             # least_squares asks for the Jacobian where it has just evaluated the residual
-            return -(differences(xv) * w).T[used]
+            return -((frozen if settling else differences(xv)) * w).T[used]
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
                                          x_scale=1.0, ftol=1e-7, xtol=1e-7, gtol=1e-9)
             x = sol.x
-            converged = converged and sol.status > 0
+            if not settling:
+                converged = converged and sol.status > 0
         f0 = predicted(x)
         s_new = problem.scales(f0)
-        if all(abs(s_new[g] / s.get(g, 1.0) - 1) < 0.02 for g in s_new):
-            s = s_new
-            break
+        settled = all(abs(s_new[g] / s.get(g, 1.0) - 1) < 0.02 for g in s_new)
         s = s_new
+        if settling:
+            if settled:  # an exact pass next: at these weights, from where the settling ended
+                frozen = None
+            continue
+        if settled:
+            break
         dev_after = problem.deviance(f0)
         if settled_enough is not None and settled_enough(dev_before, dev_after):
             break
         dev_before = dev_after
+        if free:
+            frozen = differences(x)
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
     if free:
