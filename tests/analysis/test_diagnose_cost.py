@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from omnibench.analysis.diagnosis import core, diagnose, engine
@@ -52,6 +53,46 @@ def test_settle_passes_stop_when_the_fit_says_it_has_settled_enough(omnibot, mon
     assert passes["n"] == 1 and len(calls) == 1
     before, after = calls[0]
     assert after == pytest.approx(fit.deviance) and before >= after  # a pass never raises the deviance
+
+
+def test_passes_that_only_settle_the_weights_simulate_no_jacobian_and_the_fit_ends_exact(omnibot, monkeypatch):
+    """After an exact pass that leaves the scales unsettled, the passes that only settle the
+    weights step on that pass's Jacobian (no difference stencil); the fit still ends with an
+    exact pass, at settled scales and a stationary point of its final weights."""
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    obs = _campaign(omnibot, CampaignSpec(("sweep",)), {}, seed=3, generator="model")
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    stencils = {"n": 0}
+    per_pass: list[int] = []
+    real_stencil, real_lsq = problem.stencil, engine.optimize.least_squares
+
+    def stencil(*a, **k):
+        stencils["n"] += 1
+        return real_stencil(*a, **k)
+
+    def counted(*a, **k):
+        n0 = stencils["n"]
+        out = real_lsq(*a, **k)
+        per_pass.append(stencils["n"] - n0)
+        return out
+
+    monkeypatch.setattr(problem, "stencil", stencil)
+    monkeypatch.setattr(engine.optimize, "least_squares", counted)
+    bad_scales = {g: 1e3 for g in problem.groups}  # far from the residual's: several passes to settle
+    fit = engine.fit_model(problem, start, free, max_nfev=10, passes=6, scale=bad_scales)
+    assert len(per_pass) >= 3, per_pass
+    assert per_pass[0] >= 1 and 0 in per_pass[1:-1], per_pass  # an exact first pass, then settling ones
+    assert per_pass[-1] >= 1, per_pass  # the pass that ends the fit simulates its Jacobians
+    now = problem.scales(fit.f)
+    assert all(abs(now[g] / fit.scale[g] - 1) < 0.02 for g in now)  # settled
+    w = fit.weights(problem)
+    used = problem.used
+    grad = (fit.J * w[:, None])[used].T @ ((problem.y - fit.f) * w)[used]
+    jw = np.linalg.norm((fit.J * w[:, None])[used], axis=0)
+    rw = np.linalg.norm(((problem.y - fit.f) * w)[used])
+    assert np.all(np.abs(grad) <= 1e-3 * jw * rw), grad  # stationary: the residual is orthogonal to every column
 
 
 def test_a_dominated_candidate_is_not_refitted_unless_the_winner_is_refused(omnibot, monkeypatch):
