@@ -125,6 +125,20 @@ end: campaign 1:28 -> 0:45.3, diagnose 58 -> 23.4 s, the deadband example 5:37 -
 exact stick: none), independent 2:19 -> 2:18.0. Same model file; benchmarks/diagnose.py --before
 52bf8a3 --seeds 1 --clean 2: 29 of 29 the same; benchmarks/real_data.py --before 52bf8a3: the
 same effects, values, SEs and leave-one-run-out table.
+Issue 34, settling passes and pairs (main e3e3883 -> b4d374a; one thread, CPU, the other core busy
+with a test run): engine.fit_model's passes that only settle the weights step on the last exact
+pass's Jacobian (one simulation per step, not a stencil), and an exact pass ends every fit; a
+pair's fit starts from its lead effect's own fit. The deadband example 2:44.7 -> 2:19.5 (its
+driver_deadband candidate alone, `diagnose --candidates driver_deadband`: 102.7 -> 80.6 s; the
+shifted form 110 simulations, 30 s; the cut form, 601 AIC behind, 178 simulations, 38 s: its first
+pass, at its evaluation limit, is most of it), `diagnose --loro` 9:51.8 -> 8:12.1. Same answers:
+benchmarks/diagnose.py --before e3e3883 --seeds 1 --clean 2: 29 of 29 the same;
+benchmarks/real_data.py --before e3e3883: the same effects (tau_a 0.01903 -> 0.01902 +- 0.00043,
+tau 0.002548 -> 0.002552 +- 0.00072, tau_packet 0.003917 +- 6.4e-05 both) and the same
+leave-one-run-out table digit for digit. Tried and dropped: stopping a later form's settle passes
+once it cannot beat the best form so far (engine.hopeless against the best form's LR): the cut
+form's one check, after its first pass (LR 362 + 2 x 362 of the 487 that half the winner's 974
+needs), does not stop it, and its later passes are the cheap ones now.
 
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
