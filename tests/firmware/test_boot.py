@@ -74,8 +74,12 @@ def test_flash_with_make_flash_through_the_bootloader_then_boot(boot_build, tmp_
     """`make -C firmware flash PORT=<pty>` (avrdude -c wiring) into an erased chip running the
     stock bootloader; the bootloader then starts the firmware, which talks to the host."""
     flash = tmp_path / "flash.bin"
+    # at a real Mega's pace (BOOTRIG_REALTIME): simavr's default sleep on every poll of an empty
+    # receiver slows the bootloader ~100-fold against avrdude's wall-clock timeouts, and the flash
+    # took ~65 s (mostly avrdude's timeouts); in real time it takes ~1 s
     rig = subprocess.Popen([str(boot_build / "bootrig"), str(BOOTLOADER), str(flash), "100000"],
-                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                           env={**os.environ, "BOOTRIG_REALTIME": "1"})
     try:
         line = ""
         while not line.startswith("PTY"):
