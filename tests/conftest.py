@@ -96,34 +96,6 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda it: (-cost[unit(it)], first[unit(it)]))
 
 
-@pytest.hookimpl(trylast=True, specname="pytest_collection_modifyitems")  # after xdist's own hook
-def pytest_collection_modifyitems_xdist_groups(config, items):
-    """On an xdist worker under --dist loadgroup: each grouped test's node id carries its
-    '@group' suffix, the scheduler's only view of the group. xdist (3.8) appends it by setting
-    `item._nodeid`, which pytest 9 no longer reads (Node.nodeid is `str(item._id)`): the groups
-    were silently ignored and each worker built the module-scoped and dear session fixtures
-    again (tests/analysis/test_floor_directions.py's worlds twice, ~25 s of CPU each). Where
-    xdist's suffix did not take, it is set here as xdist would set it."""
-    if not getattr(config.option, "loadgroup", False):
-        return
-    for item in items:
-        names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
-                        for m in item.iter_markers("xdist_group")})
-        if not names:
-            continue
-        suffix = "@" + "_".join(names)
-        if item.nodeid.endswith(suffix):
-            continue  # xdist's own hook did it
-        nodeid = item.nodeid + suffix
-        if hasattr(item, "_id"):  # pytest >= 9
-            from _pytest.nodeid import coerce_node_id
-
-            item._id = coerce_node_id(nodeid)
-        else:
-            item._nodeid = nodeid
-        assert item.nodeid == nodeid, (item.nodeid, nodeid)
-
-
 class _DurationRecorder:
     def __init__(self) -> None:
         self.times: dict[str, float] = {}
