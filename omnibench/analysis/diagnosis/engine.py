@@ -235,7 +235,7 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
     frozen: np.ndarray | None = None  # a settling pass's Jacobian: the differences where the last pass ended
     for k in range(passes):
         w = 1.0 / (np.array([s.get(g, 1.0) for g in problem.group]) * problem.sigma)
-        # After an exact pass that left the scales unsettled, the passes that only settle the
+        # After an exact pass that converged but left the scales unsettled, the passes that only settle the
         # weights take their steps on the differences where that pass ended (the weights move,
         # the point barely): one simulation per step instead of a Jacobian. Once the scales
         # settle, an exact pass from there ends the fit (or starts the next round of settling),
@@ -270,7 +270,7 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
         if settled_enough is not None and settled_enough(dev_before, dev_after):
             break
         dev_before = dev_after
-        if free:
+        if free and sol.status > 0:  # settle on this Jacobian only from a converged pass: near its optimum
             frozen = differences(x)
     fitted = at(x)
     # Jacobian at the solution (value units) and covariance from the profiled weights
