@@ -34,7 +34,9 @@ class Effect:
     forms: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     #: simpler candidates this one contains as a special case (serial_command_latency with
     #: tau_packet = 0 is command_latency): diagnosis prefers them unless the extra parameters
-    #: are significant given them (a likelihood-ratio test, not an AIC drop of 2 per parameter)
+    #: are significant given them (a likelihood-ratio test, not an AIC drop of 2 per parameter).
+    #: The two together are no more than this one (the library's nested effects are delays, and
+    #: delays add): diagnosis does not fit them as a pair
     nests: tuple[str, ...] = ()
     #: other start values of a parameter whose likelihood has several minima (the Stribeck speed
     #: against the sweep's discrete speeds; its static friction, whose valley with the speed has

@@ -166,3 +166,77 @@ def test_a_pair_fit_stops_settling_once_it_cannot_beat_its_lead_effect(omnibot, 
     assert seen[0] is None
     stop = seen[1]
     assert stop(100.0, 99.0) and not stop(100.0, 95.0)  # as engine.hopeless(100, 20)
+
+
+def _pairs_tried(monkeypatch, lead: str, screen: engine.Screen) -> tuple[list[str], list[str]]:
+    """The partners `core._best_pairs` fits with `lead` under the first-order look `screen`
+    (fits stubbed: each fails at once), and what it said."""
+    tried: list[str] = []
+    said: list[str] = []
+
+    def no_fit(problem, current, effects, starts, **k):
+        tried.append(effects[0].name)
+        raise ValueError("stub")
+
+    monkeypatch.setattr(core, "_screen", lambda problem, fit, pool: screen)
+    monkeypatch.setattr(engine, "fit_candidates", no_fit)
+    fit = type("Fit", (), {"deviance": 0.0})()
+    c = core.Candidate(lead, 1, 1e4, fitted=True, lr=1e4, aic_drop=1e4, fit=fit)
+    pool = [EFFECTS[n] for n in screen.approx_lr]
+    core._best_pairs(None, None, [c], pool, lambda *a: False, core.ALPHA, len(pool), said.append, 1)
+    return tried, said
+
+
+def test_a_pair_of_an_effect_and_one_it_contains_is_not_fitted(monkeypatch):
+    """per_wheel_latency contains command_latency (all four latencies equal) and delays add: the
+    pair fits nothing per_wheel_latency cannot (the 2019 logs' round 1: 25 s of CPU to reach LR
+    -266 of 16, 32 s for per-wheel latencies indistinguishable from zero). actuator_lag, not
+    contained, is still fitted with it."""
+    names = ["command_latency", "serial_command_latency", "actuator_lag"]
+    big = {n: 1e3 for n in names}
+    scr = engine.Screen(dict(big), {n: {} for n in names}, {n: 1.0 for n in names}, dict(big))
+    tried, said = _pairs_tried(monkeypatch, "per_wheel_latency", scr)
+    assert tried == ["actuator_lag"]
+    assert sum("contains the other" in m for m in said) == 2
+
+
+def test_a_partner_that_helps_only_with_an_unphysical_sign_is_not_fitted(monkeypatch):
+    """A partner whose first-order LR is large only outside its physical range (a negative
+    dead zone; the pair's fit starts at the range's edge, where it does nothing, and fitted to
+    LR 0 in 4-25 s on the 2019 logs) is not fitted; one whose LR holds inside the range is."""
+    names = ["driver_deadband", "quadratic_drag"]
+    scr = engine.Screen({n: 500.0 for n in names}, {n: {} for n in names}, {n: 1.0 for n in names},
+                        {"driver_deadband": 0.3, "quadratic_drag": 500.0})
+    tried, said = _pairs_tried(monkeypatch, "actuator_lag", scr)
+    assert tried == ["quadratic_drag"]
+    assert any("only outside its physical range" in m and "driver_deadband" in m for m in said)
+
+
+def test_the_screen_holds_the_estimate_in_the_physical_range(omnibot):
+    """engine.screen's in-range LR: the same first-order test with the estimate bounded to the
+    effect's range. Where the estimate is inside, it is the unbounded LR itself; outside, it is
+    the LR at the best in-range estimate of the same linearisation, never more than the unbounded
+    one (a bounded least-squares optimum); an effect that changes nothing scores 0 both ways."""
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    obs = _campaign(omnibot, CampaignSpec(("sweep",)), {"driver_deadband": {"u_0": 0.04}}, seed=3,
+                    generator="model")
+    problem = engine.Problem(obs, obs.procedures())
+    start, free, _ = _base_free(omnibot, obs, obs.procedures())
+    current = engine.fit_model(problem, start, free, max_nfev=10, passes=2)
+    pool = [EFFECTS[n] for n in ("driver_deadband", "quadratic_drag", "battery_resistance", "floor_slope",
+                                 "asymmetric_coulomb", "stribeck_friction")]
+    scr = engine.screen(problem, current, pool)
+    inside = 0
+    for e in pool:
+        est = scr.estimate[e.name]
+        spec = {q.name: q for q in e.term.params}
+        if all(spec[p].lower <= v <= spec[p].upper for p, v in est.items()):
+            inside += 1
+            assert scr.in_range[e.name] == scr.approx_lr[e.name], e.name
+        else:
+            assert scr.in_range[e.name] <= scr.approx_lr[e.name] * (1 + 1e-9), e.name
+    assert scr.approx_lr["floor_slope"] == scr.in_range["floor_slope"] == 0.0  # upside down: no slope
+    assert scr.estimate["driver_deadband"]["u_0"] > 0  # the world's dead zone: inside, as the LR says
+    assert scr.in_range["driver_deadband"] > 100
+    assert inside >= 2

@@ -676,6 +676,7 @@ def _screen(problem: engine.Problem, fit: engine.ModelFit, pool: Sequence[Effect
             if e.name not in out.approx_lr or scr.approx_lr[e.name] > out.approx_lr[e.name]:
                 out.approx_lr[e.name], out.estimate[e.name] = scr.approx_lr[e.name], scr.estimate[e.name]
             out.distinct[e.name] = max(out.distinct.get(e.name, 0.0), scr.distinct[e.name])
+            out.in_range[e.name] = max(out.in_range.get(e.name, 0.0), scr.in_range[e.name])
     return out
 
 
@@ -778,6 +779,18 @@ def _best_pairs(problem: engine.Problem, current: engine.ModelFit, fitted: list[
                 continue
             done.add(key)
             e1 = EFFECTS[lead.name].with_form(lead.form)
+            if e2.name in EFFECTS[lead.name].nests or lead.name in e2.nests:
+                say(f"round {rnd}: not fitting the pair {lead.name} + {e2.name}: one contains the other "
+                    "as a special case (delays add: the pair fits nothing the larger one cannot)")
+                continue
+            if scr.in_range[e2.name] < SCREEN_FRACTION * thr[e2.name]:
+                # its fit starts from the estimate clipped into the physical range, where the
+                # same first-order test gives it too little: an effect that helps only with an
+                # unphysical sign (the fit ends at the range's edge, where it does nothing)
+                say(f"round {rnd}: not fitting the pair {lead.name} + {e2.name}: {e2.name}'s first-order "
+                    f"LR given {lead.name} is {scr.approx_lr[e2.name]:.1f} only outside its physical range, "
+                    f"{scr.in_range[e2.name]:.1f} inside (needs {thr[e2.name]:.1f})")
+                continue
             say(f"round {rnd}: fitting the pair {lead.name} + {e2.name}")
             # the second must matter given the first: its settle passes stop once it cannot
             need2 = _lr_threshold(alpha / m, e2.n_params)

@@ -102,7 +102,7 @@ def round_candidates(problem: engine.Problem, current: engine.ModelFit, rnd: int
         c = make(spec.name, rnd, float("nan"), q=1)
         try:
             cf = engine.fit_model(problem, current.robot, list(current.free) + [spec.name], max_nfev=15,
-                                  scale=current.scale)
+                                  scale=current.scale, candidate=True)
         except (np.linalg.LinAlgError, ValueError) as exc:
             c.reason = f"re-estimate failed ({exc.__class__.__name__})"
             tried.append(c)

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -190,16 +190,31 @@ def _robot_with_effect(robot: Robot, effect: Effect, values: Mapping[str, float]
 SETTLE_PASSES = 6
 
 
+#: A candidate's fit (not the declared model's, nor an accepted model's polish) stops once a step
+#: gains less than this much deviance, or moves the parameters by less than CANDIDATE_XTOL of
+#: their scales: its likelihood ratio is judged against thresholds of 10-20 and AIC differences
+#: of 2, and a step that gains 0.1 moves the parameters by ~0.3 SE. The tight tolerances (1e-7)
+#: spent a third of the 2019 logs' candidate fits on steps that gained < 0.01, most of them
+#: steps rejected one after another on latencies' staircase (a physics step) until the trust
+#: region shrank to 1e-7.
+CANDIDATE_DEVIANCE_TOL = 0.1
+CANDIDATE_XTOL = 1e-4
+
+
 def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: int = 20, passes: int = SETTLE_PASSES,
               scale: Mapping[str, float] | None = None,
-              settled_enough: Callable[[float, float], bool] | None = None) -> ModelFit:
+              settled_enough: Callable[[float, float], bool] | None = None, candidate: bool = False) -> ModelFit:
     """Minimise the profile deviance over `free` (names as in fitting: a, b, ..., effect.param),
     re-weighting each group by its own residual scale until every scale settles within 2 % (at
     most `passes` weighted fits), or until `settled_enough(deviance before the pass, after it)`
     says further passes cannot change what the fit is for (a candidate that cannot pass).
+    candidate: converge only as far as a candidate's test needs (CANDIDATE_DEVIANCE_TOL).
 
     `robot` is the start point and holds every fixed parameter."""
     free = list(free)
+    # least_squares' cost is half the weighted RSS, ~ half the used entries at settled scales
+    ftol = max(1e-7, CANDIDATE_DEVIANCE_TOL / max(int(problem.used.sum()), 1)) if candidate else 1e-7
+    xtol = CANDIDATE_XTOL if candidate else 1e-7
     params = Parameters(robot, free)
     scl, lo, hi = params.scale, params.lower, params.upper
     x = np.clip(params.x_of(robot), lo, hi)
@@ -252,7 +267,7 @@ def fit_model(problem: Problem, robot: Robot, free: Sequence[str], *, max_nfev: 
 
         if free:
             sol = optimize.least_squares(resid, x, jac=jac, bounds=(lo, hi), method="trf", max_nfev=max_nfev,
-                                         x_scale=1.0, ftol=1e-7, xtol=1e-7, gtol=1e-9)
+                                         x_scale=1.0, ftol=ftol, xtol=xtol, gtol=1e-9)
             x = sol.x
             if not settling:
                 converged = converged and sol.status > 0
@@ -334,6 +349,10 @@ class Screen:
     #: (norm after / before projecting their directions out): 0 when it changes no prediction
     #: in these data, ~0 when the change equals a change of the fitted parameters
     distinct: dict[str, float]
+    #: the approximate LR with the estimate held in the effect's physical range (bounded least
+    #: squares on the same linearisation): what a fit that starts from the estimate, clipped
+    #: into the range, can expect (a pair's second effect starts there, `fit_candidates`)
+    in_range: dict[str, float] = field(default_factory=dict)
 
 
 def secant_steps(effect: Effect) -> dict[str, float]:
@@ -371,7 +390,15 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
         proj = lambda v: v  # noqa: E731
     r_perp = proj(r)
     groups = problem.group[used]
-    out, est, distinct = {}, {}, {}
+    masks = [(m, int(m.sum())) for m in (groups == g for g in problem.groups)]
+
+    def lr_of(new: np.ndarray) -> float:
+        # change of the profile deviance, group by group (a small group that the candidate
+        # explains entirely counts as much as it would in the exact test)
+        return sum((n - 1) * math.log(max(float(r[m] @ r[m]), 1e-300) / max(float(new[m] @ new[m]), 1e-12 * n))
+                   for m, n in masks if n >= 2)
+
+    out, est, distinct, in_range = {}, {}, {}, {}
     for eff in candidates:
         idx = [k for k, c in enumerate(cols) if c[0] == eff.name]
         raw = np.stack([((F[k] - current.f) / cols[k][2] * w)[used] for k in idx], axis=1)
@@ -379,18 +406,19 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
         size = float(np.linalg.norm(raw))
         distinct[eff.name] = float(np.linalg.norm(A)) / size if size > 0 else 0.0
         coef, *_ = np.linalg.lstsq(A, r_perp, rcond=None)
-        new = r_perp - A @ coef
-        # change of the profile deviance, group by group (a small group that the candidate
-        # explains entirely counts as much as it would in the exact test)
-        lr = 0.0
-        for g in problem.groups:
-            m = groups == g
-            n = int(m.sum())
-            if n >= 2:
-                lr += (n - 1) * math.log(max(float(r[m] @ r[m]), 1e-300) / max(float(new[m] @ new[m]), 1e-12 * n))
-        out[eff.name] = max(lr, 0.0) if np.any(np.abs(A) > 0) else 0.0
+        moves = bool(np.any(np.abs(A) > 0))
+        out[eff.name] = max(lr_of(r_perp - A @ coef), 0.0) if moves else 0.0
         est[eff.name] = {cols[k][1]: float(c) for k, c in zip(idx, coef)}
-    return Screen(out, est, distinct)
+        spec = [eff.term.params[eff.term.param_names.index(cols[k][1])] for k in idx]
+        lo, hi = np.array([q.lower for q in spec], float), np.array([q.upper for q in spec], float)
+        if not moves:
+            in_range[eff.name] = 0.0
+        elif np.all((coef >= lo) & (coef <= hi)):
+            in_range[eff.name] = out[eff.name]
+        else:
+            inside = optimize.lsq_linear(A, r_perp, bounds=(lo, hi)).x
+            in_range[eff.name] = max(lr_of(r_perp - A @ inside), 0.0)
+    return Screen(out, est, distinct, in_range)
 
 
 def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
@@ -436,7 +464,7 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
     best = None
     for st in _restarts(effect, start):
         robot = _robot_with_effect(base, effect, st)
-        f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=scale,
+        f = fit_model(problem, robot, free, max_nfev=max_nfev, scale=scale, candidate=True,
                       settled_enough=None if needed is None else hopeless(current.deviance, needed))
         if best is None or f.deviance < best.deviance:
             best = f
@@ -511,7 +539,7 @@ def fit_candidates(problem: Problem, current: ModelFit, effects: Sequence[Effect
         vals.update({k.split(".", 1)[1]: v for k, v in st.items() if k.startswith(eff.name + ".")})
         robot = _robot_with_effect(robot, eff, vals)
         free += [f"{eff.name}.{p}" for p in eff.fit]
-    return fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale,
+    return fit_model(problem, robot, free, max_nfev=max_nfev, scale=current.scale, candidate=True,
                      settled_enough=None if needed is None else hopeless(*needed))
 
 
