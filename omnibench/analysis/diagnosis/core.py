@@ -385,10 +385,11 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
         strong = [e for e in pool if scr.approx_lr[e.name] / thr[e.name]
                   >= max(RELATIVE_SCREEN * best_ratio, SCREEN_FRACTION)]
         n_lead = min(top_k, len(strong))
+        unphysical = 0  # sent to a fit by their first-order LR, which holds only outside their range
         for e in order:
             c = Candidate(e.name, rnd, scr.approx_lr[e.name], q=e.n_params)
             ratio = scr.approx_lr[e.name] / thr[e.name]
-            n_fitted = len([t for t in tried if t.fitted])
+            n_fitted = len([t for t in tried if t.fitted]) + unphysical
             # refit the top_k; when all of those fail, keep going down the ranking (up to MAX_FITS)
             fallback = not passing and top_k <= n_fitted < MAX_FITS
             leading = ratio >= RELATIVE_SCREEN * best_ratio
@@ -398,6 +399,13 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
                             f"LR = {winner.lr:.1f} is over {DOMINANCE:.0f} times that")
                 say(f"round {rnd}: not fitting {e.name} ({c.reason})")
                 deferred.append(e)
+            elif (((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION
+                  and scr.in_range[e.name] < SCREEN_FRACTION * thr[e.name]):
+                # it takes the place of a fit that fails (the next in the ranking is not promoted)
+                unphysical += 1
+                c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f} only with {e.name} outside its physical "
+                            f"range ({scr.in_range[e.name]:.1f} inside it, {thr[e.name]:.1f} needed): not refitted")
+                say(f"round {rnd}: not fitting {e.name} ({c.reason})")
             elif ((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION:
                 n_all = max(n_lead, n_fitted + 1)
                 if e.name not in fits_done:
