@@ -240,3 +240,32 @@ def test_the_screen_holds_the_estimate_in_the_physical_range(omnibot):
     assert scr.estimate["driver_deadband"]["u_0"] > 0  # the world's dead zone: inside, as the LR says
     assert scr.in_range["driver_deadband"] > 100
     assert inside >= 2
+
+
+def test_a_candidate_promising_only_outside_its_range_is_not_refitted_nor_replaced(omnibot, monkeypatch):
+    """The dead zone's world, with the screen made to say that driver_deadband's first-order LR
+    holds only outside its range: it is not refitted, the report says why, and it keeps its
+    place among the fits the round makes (no candidate below it in the ranking is fitted instead)."""
+    obs = _campaign(omnibot, CampaignSpec(("sweep",)), {"driver_deadband": {"u_0": 0.04}}, seed=3,
+                    generator="model")
+    real = core._screen
+    fitted: list[list[str]] = []
+
+    def run(hide: bool) -> core.Diagnosis:
+        def screen(problem, fit, pool):
+            scr = real(problem, fit, pool)
+            if hide and "driver_deadband" in scr.in_range:
+                scr.in_range["driver_deadband"] = 0.0
+            return scr
+
+        monkeypatch.setattr(core, "_screen", screen)
+        d = diagnose(omnibot, obs, max_effects=1)
+        fitted.append(sorted(c.name for c in d.selected + d.rejected if c.fitted and c.round == 1))
+        return d
+
+    shown = run(hide=False)
+    assert [c.name for c in shown.selected] == ["driver_deadband"]
+    hidden = run(hide=True)
+    dz = next(c for c in hidden.rejected if c.name == "driver_deadband" and c.round == 1)
+    assert not dz.fitted and "only with driver_deadband outside its physical range" in dz.reason
+    assert set(fitted[1]) <= set(fitted[0]) - {"driver_deadband"}
