@@ -512,7 +512,9 @@ def _stated_noise(pred: Predictor, used: np.ndarray, notes: list[str]) -> tuple[
     `_joint_fit` replaces it by the residual RMS of a first pass). Appends a note per such group."""
     sigma = pred.sigma.copy()
     unknown = ~np.isfinite(sigma) | (sigma <= 0)
-    groups = pred.table[["procedure", "signal"]].astype(str).agg("/".join, axis=1).to_numpy()
+    t = pred.table
+    # column-wise, not a row-wise "/".join (~40 ms of CPU per fit of the campaign's 424 entries)
+    groups = (t["procedure"].astype(str) + "/" + t["signal"].astype(str)).to_numpy()
     for g in np.unique(groups[used]):
         m = (groups == g) & used
         if unknown[m].any() and unknown[m].mean() >= 0.5:
