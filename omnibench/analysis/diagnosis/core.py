@@ -399,9 +399,10 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
                             f"LR = {winner.lr:.1f} is over {DOMINANCE:.0f} times that")
                 say(f"round {rnd}: not fitting {e.name} ({c.reason})")
                 deferred.append(e)
-            elif (((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION
+            elif (((n_fitted < top_k and leading) or fallback) and ratio >= SCREEN_FRACTION and lazy
                   and scr.in_range[e.name] < SCREEN_FRACTION * thr[e.name]):
-                # it takes the place of a fit that fails (the next in the ranking is not promoted)
+                # it takes the place of a fit that fails (the next in the ranking is not promoted);
+                # when the round is done again (its winner refused), every candidate is refitted
                 unphysical += 1
                 c.reason = (f"first-order test LR ≈ {c.approx_lr:.1f} only with {e.name} outside its physical "
                             f"range ({scr.in_range[e.name]:.1f} inside it, {thr[e.name]:.1f} needed): not refitted")
