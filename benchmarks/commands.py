@@ -139,6 +139,21 @@ leave-one-run-out table digit for digit. Tried and dropped: stopping a later for
 once it cannot beat the best form so far (engine.hopeless against the best form's LR): the cut
 form's one check, after its first pass (LR 362 + 2 x 362 of the 487 that half the winner's 974
 needs), does not stop it, and its later passes are the cheap ones now.
+Issue 34, fits that cannot matter (main ceaf918 -> 141f9ef): no pair fit for a partner whose
+first-order LR holds only outside its physical range (engine.Screen.in_range) or that one of the
+pair nests; no candidate fit for such a candidate (it keeps its place among the round's fits);
+candidate fits stop at a deviance gain of 0.1 or a step of 1e-4 of the scales
+(engine.CANDIDATE_DEVIANCE_TOL). The 2019 logs' diagnose (without --loro) simulated 2902 -> 1301
+parameter sets (counted as scipy's evaluations plus p + 1 per Jacobian; the tolerances alone, on
+the fits both made: 2515 -> 2039). One thread, CPU, quiet: `diagnose --loro` 8:13.8 -> 4:02.3,
+the deadband example 2:28.0 -> 2:15.3 (same finding, u_0 0.040039 +- 0.000062). Both cores, quiet:
+campaign 40.2 s wall, fit 6.9 s, the deadband example 1:37.6, `diagnose --loro` 3:23.6, the
+independent-physics campaign 1:49.8. Same answers: benchmarks/diagnose.py --before ceaf918 --seeds
+1 --clean 2: 29 of 29 the same; benchmarks/real_data.py --before ceaf918: the same effects and
+values (tau_a 0.01902 +- 0.00043, tau 0.002552 +- 0.00072, tau_packet 0.003917 +- 6.4e-05) and the
+same leave-one-run-out table digit for digit. `fit` (helper branch, observations and residual
+structure vectorised): reading the runs 0.55-0.65 -> 0.39-0.41 s of CPU; the rest is imports
+(~1.5-2 s) and the kernel (~4.5 s of CPU).
 
     .venv/bin/python benchmarks/commands.py                       # all, one thread
     .venv/bin/python benchmarks/commands.py --only campaign,fit,diagnose --profile
