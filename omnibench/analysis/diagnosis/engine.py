@@ -350,8 +350,9 @@ class Screen:
     #: in these data, ~0 when the change equals a change of the fitted parameters
     distinct: dict[str, float]
     #: the approximate LR with the estimate held in the effect's physical range (bounded least
-    #: squares on the same linearisation): what a fit that starts from the estimate, clipped
-    #: into the range, can expect (a pair's second effect starts there, `fit_candidates`)
+    #: squares on the same linearisation): what a physical value of the effect can gain to first
+    #: order. diagnosis fits neither a candidate nor a pair's second effect (which starts from
+    #: the estimate clipped into the range, `fit_candidates`) whose LR holds only outside it
     in_range: dict[str, float] = field(default_factory=dict)
 
 
