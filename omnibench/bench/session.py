@@ -343,7 +343,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
             raise UserError(f"cannot resume {resume}: {disk_error_line(exc, Path(resume))}") from None
         done = set(steps_done(writer.path))
         todo = [s for s in plan.steps if s.index not in done]
-        echo(f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete")
+        announce = f"resuming {writer.path}: {len(done)} of {len(plan.steps)} steps already complete"
     else:
         try:
             writer = RunWriter.create(
@@ -359,16 +359,22 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                     "full disk)") if str(exc.filename or "").endswith(".reserve") else ""
             raise UserError(f"cannot create a run under {out}: {disk_error_line(exc, Path(out))}{need}") from None
         todo = list(plan.steps)
-        echo(f"{LABELS[procedure]}: run {writer.path}")
+        announce = f"{LABELS[procedure]}: run {writer.path}"
     status: str = "failed"
     reason: str | None = "unknown"
     disk_full = False
     lock = run_lock(writer.path) if resume is None else contextlib.nullcontext()
-    lock.__enter__()
-    log = RunLog(writer.path)  # log.txt: what the terminal said
-    log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
+    locked = False
+    log: Callable[[str], None] = lambda line: None  # noqa: E731 - until log.txt is open
     restore: Callable[[], Any] = lambda: None  # noqa: E731 - until SIGTERM is caught, nothing to restore
     try:
+        # from here on a Ctrl-C marks the run aborted (a Ctrl-C right after the run folder was
+        # made, as the operator read its path, left run.json saying "running")
+        echo(announce)
+        lock.__enter__()
+        locked = True
+        log = RunLog(writer.path)  # log.txt: what the terminal said
+        log(f"{LABELS[procedure]} on {port}, operator {operator.source}")
         restore = sigterm_as_interrupt()
         if resume is not None:  # a new run claimed its reserve as it was created
             writer.reserve(max(RESERVE_BYTES, 8 * len(json.dumps(writer.metadata, default=str))))
@@ -434,7 +440,8 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                        err=True)
         log(f"run {status}" + (f": {reason}" if reason else "") + f"; motors {'stopped' if stopped else 'NOT confirmed stopped'}")
         restore()
-        lock.__exit__(None, None, None)
+        if locked:
+            lock.__exit__(None, None, None)
         if status != "complete":
             resumable = status == "aborted" or disk_full
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "

@@ -618,7 +618,8 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
     from omnibench.bench.session import load_robot_file, run_command
-    from omnibench.campaign.run import make_plots, procedure_files, write_report
+    from omnibench.campaign.run import finish_campaign, make_plots, procedure_files, write_report
+    from omnibench.procedures import COMMAND_OF
     from omnibench.runs.store import json_ready
 
     out = Path(out)
@@ -646,14 +647,17 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     pending: dict[str, Any] = {}
     results: dict[str, Any] = {"port": port, "out": str(out), "tool_version": __version__,
                                "robot_file": str(robot_file) if robot_file else "default", "procedures": {},
-                               "analysis": {}, "runs": []}
+                               "analysis": {}, "runs": [], "status": "running"}
+    where = "design round 1"
 
     def log(kind: str, rec: dict[str, Any]) -> None:
+        nonlocal where
         from omnibench.runs.store import dumps
 
         with open(log_path, "a", encoding="utf-8") as fh:
             fh.write(dumps({"kind": kind, **rec}) + "\n")
         if kind == "design_round":
+            where = f"design round {rec['round']}"
             pending.clear()
             pending.update(rec)
             echo(f"== design round {rec['round']}: " + "; ".join(rec["runs_now"]))
@@ -661,8 +665,10 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
             echo(f"== design: {rec.get('why')}")
 
     def execute(written: list[tuple[str, Path]], r: int) -> Any:
+        nonlocal where
         dirs = []
         for proc, path in written:
+            where = COMMAND_OF[proc]
             echo(f"== {proc}: {path}")
             res = run_command(proc, port=port, procedure_file=path, robot_file=robot_file, out=runs_dir, echo=echo,
                               progress=False)
@@ -671,18 +677,35 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
             results["procedures"][proc] = res
             results["runs"].append(res["run"])
             dirs.append(res["run"])
+            where = f"design round {r}"  # its runs' analysis, the next round's plan
         return Observations.from_runs(dirs, robot)
 
-    result = adaptive_loop(robot, targets, files, execute, out / "design", costs=costs, limits=limits,
-                           current=current, budget_seconds=60 * budget_minutes if budget_minutes else math.inf,
-                           budget_actions=budget_actions if budget_actions is not None else math.inf,
-                           log=log, space=space, prior=prior)
-    if energy:
-        echo("== energy: " + str(files["energy_trajectories"]))
-        results["procedures"]["energy_trajectories"] = run_command(
-            "energy_trajectories", port=port, procedure_file=files["energy_trajectories"], robot_file=robot_file,
-            out=runs_dir, echo=echo, progress=False)
-    results["analysis"] = analyse(runs_dir, out, robot_file, echo, stages) if analyse is not None else {}
+    try:
+        result = adaptive_loop(robot, targets, files, execute, out / "design", costs=costs, limits=limits,
+                               current=current, budget_seconds=60 * budget_minutes if budget_minutes else math.inf,
+                               budget_actions=budget_actions if budget_actions is not None else math.inf,
+                               log=log, space=space, prior=prior)
+        if energy:
+            where = COMMAND_OF["energy_trajectories"]
+            echo("== energy: " + str(files["energy_trajectories"]))
+            results["procedures"]["energy_trajectories"] = run_command(
+                "energy_trajectories", port=port, procedure_file=files["energy_trajectories"], robot_file=robot_file,
+                out=runs_dir, echo=echo, progress=False)
+        where = "analysis"
+        if analyse is not None:
+            analyse(runs_dir, out, robot_file, echo, stages, into=results["analysis"])
+    except KeyboardInterrupt:
+        # as run_campaign: the runner stopped the motors and marked its run aborted; what finished
+        # is written with where it stopped (an adaptive campaign does not resume: the next one
+        # plans from these runs)
+        where = next((n for n, st in results["analysis"].items() if st.get("status") == "interrupted"), where)
+        results.update(status="interrupted", stopped_at=where)
+        echo(f"campaign interrupted (Ctrl-C) in {where}: the motors are stopped, the runs and design.jsonl are "
+             f"kept in {out}; an adaptive campaign does not resume: plan the next one from these runs with "
+             f"--adaptive --prior-runs RUN (each of {runs_dir}) and another --out")
+        finish_campaign(results, out, robot, t0, echo, summary=False)
+        raise
+    results["status"] = "complete"
     results["plots"] = make_plots(results, out, robot)
     summary = design_summary(result, robot, files, space, costs, current)
     summary["prior_runs"] = [str(p) for p in prior_runs]

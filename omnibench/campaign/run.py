@@ -145,10 +145,10 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         how = "terminated (SIGTERM)" if isinstance(sys.exc_info()[1], Terminated) else "interrupted (Ctrl-C)"
         echo(f"campaign {how} in {where}: the motors are stopped, the runs and the finished "
              f"stages are kept in {out}; continue with: omnibench campaign --resume --port {port} --out {out}")
-        _finish(results, out, robot, t0, echo, summary=False)
+        finish_campaign(results, out, robot, t0, echo, summary=False)
         raise
     results["status"] = "complete"
-    _finish(results, out, robot, t0, echo, summary=True)
+    finish_campaign(results, out, robot, t0, echo, summary=True)
     return results
 
 
@@ -163,7 +163,7 @@ def _interrupted_analysis(out: Path) -> dict[str, Any] | None:
     return data["analysis"]
 
 
-def _finish(results: dict[str, Any], out: Path, robot: Robot, t0: float, echo: Callable[[str], None], *,
+def finish_campaign(results: dict[str, Any], out: Path, robot: Robot, t0: float, echo: Callable[[str], None], *,
             summary: bool) -> None:
     """Plots, report.md, report.html and campaign.json for `results` (complete or interrupted)."""
     from omnibench.campaign.html_report import write_html

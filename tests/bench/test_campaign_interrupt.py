@@ -74,3 +74,24 @@ def test_ctrl_c_in_fit_and_in_diagnose_exits_130_and_resume_completes(tmp_path):
     assert state["status"] == "complete"
     assert {st["status"] for st in state["analysis"].values()} == {"ok"}
     assert "Interrupted" not in (out / "report.md").read_text()
+
+
+def test_ctrl_c_in_an_adaptive_campaign_stops_the_run_and_records_where(tmp_path):
+    """An adaptive campaign interrupted in its first planned run: exit 130, that run aborted (the
+    motors stopped), campaign.json and report.md say where it stopped, the design log is kept,
+    and the message says how to go on (an adaptive campaign plans anew from its runs)."""
+    out = tmp_path / "a"
+    # a real-time board at 5x: the first planned run (forward runs) lasts about a second of wall
+    # time, and the Ctrl-C comes as soon as the run says its folder
+    cmd = [sys.executable, "-m", "omnibench", "campaign", "--adaptive", "--port", "sim://?seed=4&clock=realtime&speed=5",
+           "--out", str(out), "--target-se", "a=3%,b=2%", "--procedures", str(HERE / "procedures" / "campaign"),
+           "--analysis", "none"]
+    code, err = _interrupt_at(cmd, "III.ii forward/backward runs: run ")
+    assert code == 130, err
+    assert "interrupted (Ctrl-C) in forward" in err and "--prior-runs" in err
+    state = json.loads((out / "campaign.json").read_text())
+    assert state["status"] == "interrupted" and state["stopped_at"] == "forward"
+    assert "Interrupted (Ctrl-C) in forward" in (out / "report.md").read_text()
+    (run,) = list((out / "runs").iterdir())
+    assert json.loads((run / "run.json").read_text())["status"] == "aborted"
+    assert json.loads((out / "design.jsonl").read_text().splitlines()[0])["kind"] == "design_round"
