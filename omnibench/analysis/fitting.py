@@ -373,14 +373,25 @@ STAGES = (("sweep", {"a", "b", "c", "k_t", "k_e", "R_a", "eta"}), ("forward", {"
           ("lateral", {"a_r", "b_r", "c_r"}))
 
 
+#: Each least-squares solve of the fit stops once a step gains less than this much deviance
+#: (chi^2 of the weighted residuals; scipy's relative ftol is this over the number of residuals,
+#: the cost at weights that describe the noise being half that number). A gain of 0.01 is a
+#: parameter step of ~0.1 SE at most; the steps it leaves out moved the parameters by < 0.0002 SE
+#: (issue 34: on a clean campaign's runs every value the same to 1.4e-4 SE, the SEs to 2e-6, the
+#: fit 5.2 -> 4.1 s of CPU; ftol 1e-7 alone had taken one or two steps more per solve, each
+#: gaining < 1e-4 with a Jacobian of ~10 simulations).
+FIT_DEVIANCE_TOL = 0.01
+
+
 def _solve(prob: WeightedResiduals, names: list[str], robot: Robot, x0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounded trust-region least squares from x0; returns (x, weighted Jacobian at x)."""
     lo = np.array([param_bounds(robot, p)[0] for p in names]) / prob.scale
     hi = np.array([param_bounds(robot, p)[1] for p in names]) / prob.scale
     x0 = np.clip(x0, lo, hi)
     x0 = np.where(x0 <= lo, lo + 1e-9 * np.maximum(1.0, np.abs(lo)), x0)
+    ftol = max(1e-7, FIT_DEVIANCE_TOL / max(int(prob.problem.used.sum()), 1))
     sol = optimize.least_squares(prob.residual, x0, jac=prob.jacobian, bounds=(lo, hi), method="trf",
-                                 x_scale=1.0, max_nfev=max_nfev, ftol=1e-7, xtol=1e-7, gtol=1e-9)
+                                 x_scale=1.0, max_nfev=max_nfev, ftol=ftol, xtol=1e-7, gtol=1e-9)
     return sol.x, prob.jacobian(sol.x)
 
 
