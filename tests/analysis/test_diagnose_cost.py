@@ -2,7 +2,8 @@
 
 A candidate whose first-order LR a fitted, adequate candidate's exact LR dominates is not refitted
 (core.DOMINANCE), unless that one is refused at its final fit; a candidate fit stops re-weighting
-once it cannot reach the ratio it needs (engine.hopeless).
+once it cannot reach the ratio it needs (engine.hopeless); a restart stops re-weighting once it
+is behind the best start's fit after as many passes (engine._behind).
 """
 
 from __future__ import annotations
@@ -27,6 +28,24 @@ def test_hopeless_counts_the_ratio_so_far_and_twice_the_last_pass_gain():
     # a start worse than the current model: its first pass's gain counts from the current model only
     assert stop(130.0, 99.0)
     assert not stop(101.0, 91.0)  # LR 9 + 2 x 9
+
+
+def test_a_restart_stops_once_behind_the_best_start_after_as_many_passes():
+    lead = [300.0, 260.0, 259.0]  # the best start: after its passes 1 and 2, then its final deviance
+    first: list[float] = []
+    alone = engine._behind(first, [], None)  # the first start: nothing to be behind
+    assert not alone(900.0, 310.0) and not alone(310.0, 305.0) and first == [310.0, 305.0]
+    trail: list[float] = []
+    ahead = engine._behind(trail, lead, None)
+    assert not ahead(900.0, 290.0)  # ahead after pass 1 (a better minimum shows early)
+    assert not ahead(290.0, 255.0)
+    assert not ahead(255.0, 258.5)  # past the lead's passes: against its final deviance
+    assert ahead(258.5, 259.5) and trail == [290.0, 255.0, 258.5, 259.5]
+    behind = engine._behind([], lead, None)
+    assert behind(900.0, 300.5)  # behind after its first pass: the same or a worse minimum
+    hopeful = engine._behind([], lead, engine.hopeless(reference=320.0, needed=200.0))
+    assert hopeful(900.0, 295.0)  # ahead of the lead, but it cannot reach the ratio it needs
+    assert not engine._behind([], lead, engine.hopeless(reference=400.0, needed=200.0))(900.0, 295.0)
 
 
 def test_settle_passes_stop_when_the_fit_says_it_has_settled_enough(omnibot, monkeypatch):
