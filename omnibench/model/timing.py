@@ -83,8 +83,6 @@ def lag_schedules(t_cmd: np.ndarray, U: np.ndarray, lags: np.ndarray, dt: float,
     (lags (B, 4), s; 0 = none) -> (t (N,), U' (B, N, 4)) on the physics grid k dt up to t_end:
     each step's exact average of the lagged duty, the command held constant over the step at
     its own average (exact for a schedule on the grid, as `delay_schedules(..., dt)` gives)."""
-    from scipy.signal import lfilter
-
     U = np.asarray(U, dtype=float)
     B = U.shape[0]
     n = int(math.ceil(t_end / dt - 1e-9)) + 1
@@ -94,10 +92,42 @@ def lag_schedules(t_cmd: np.ndarray, U: np.ndarray, lags: np.ndarray, dt: float,
     out = ubar.copy()
     lags = np.asarray(lags, dtype=float).reshape(B, 4)
     a, c = lag_coefficients(lags, dt)
+    start = _lag_filter()
     for b, j in zip(*np.nonzero(lags > 0)):
-        y = lfilter([0.0, 1.0 - a[b, j]], [1.0, -a[b, j]], ubar[b, j])  # value at each step's start, 0 at t = 0
+        y = start(ubar[b, j], float(a[b, j]))  # value at each step's start, 0 at t = 0
         out[b, j] = ubar[b, j] + (y - ubar[b, j]) * c[b, j]
     return grid[:-1], np.ascontiguousarray(out.transpose(0, 2, 1))
+
+
+def _lag_starts(x: np.ndarray, a: float) -> np.ndarray:
+    """The lagged value at each step's start, 0 at the first: y[k] = (1 - a) x[k-1] + a y[k-1].
+    The arithmetic of scipy.signal.lfilter([0, 1 - a], [1, -a], x) (direct form II transposed),
+    step for step, so the numbers are the same bit for bit (tests/effects/test_timing.py); not
+    scipy's own: importing scipy.signal costs ~1 s of every process that simulates a lag (each
+    diagnose screens actuator_lag), for a one-line recursion."""
+    b1 = 1.0 - a
+    a1 = -a
+    y = np.empty_like(x)
+    z = 0.0
+    for k in range(x.shape[0]):
+        yk = z + 0.0 * x[k]
+        y[k] = yk
+        z = x[k] * b1 - yk * a1
+    return y
+
+
+_LAG_FILTER = None
+
+
+def _lag_filter():
+    """`_lag_starts` compiled by numba (cached on disk; numba is imported only when a lag is
+    simulated: this module is also read by the robot file's loader)."""
+    global _LAG_FILTER
+    if _LAG_FILTER is None:
+        from numba import njit
+
+        _LAG_FILTER = njit(cache=True)(_lag_starts)
+    return _LAG_FILTER
 
 
 def delay_schedules(t_cmd: np.ndarray, U: np.ndarray, delays: np.ndarray,

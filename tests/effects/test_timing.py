@@ -94,6 +94,24 @@ def test_actuator_lag_gives_the_first_order_step_response_exactly():
     assert U[0, 100 + int(tau / dt), 2] == pytest.approx(1 - np.exp(-1), abs=0.02)  # 63 % after tau_a
 
 
+def test_the_lag_recursion_is_scipys_first_order_filter_bit_for_bit():
+    """The lag's recursion (model/timing.py, compiled, without importing scipy.signal) gives the
+    numbers of scipy.signal.lfilter([0, 1 - a], [1, -a], x) exactly, for several time constants
+    and duty histories with steps, ramps, sign changes and long runs."""
+    from scipy.signal import lfilter
+
+    from omnibench.model.timing import _lag_filter, lag_coefficients
+
+    rng = np.random.default_rng(4)
+    x = np.concatenate([np.zeros(5), np.ones(300), rng.uniform(-1, 1, 2000), np.linspace(-0.7, 0.9, 30000)])
+    for tau in (0.0005, 0.004, 0.03, 0.5):
+        a = float(lag_coefficients(np.array([tau]), 1e-3)[0][0])
+        got = _lag_filter()(x, a)
+        want = lfilter([0.0, 1.0 - a], [1.0, -a], x)
+        assert got[0] == 0.0
+        assert np.array_equal(got, want), (tau, np.max(np.abs(got - want)))
+
+
 def test_simulated_board_applies_actuator_lag_like_the_batch_simulator(omnibot):
     scen = Scenario(mode="upside_down", effects={"actuator_lag": {"tau_a": 0.04},
                                                  "command_latency": {"tau": 0.0125}})
