@@ -177,6 +177,18 @@ class IndependentPhysics:
         self._u_last: tuple | None = None
         self.u_act = np.zeros((B, 4))  # actuator_lag: the duty the motors see (0 at the start)
         self.lagged = bool(np.any(e["tau_a"] > 0))
+        self.screw = bool(np.any(e["screw"]))
+        self.rolling = FN * r.C_r * r.r  # rolling resistance at the wheel, N m
+        self.roller_load = 1.0 + r.c_r * FN
+        self.I_idle = r.I_0 + e["I_q"]  # A
+        self._dry_const = (self.Fb + self.asym, self.Fb - self.asym)
+        self.Fs = self.w.mass * GRAVITY * np.sin(e["theta_s"])  # the floor slope's pull, N
+        up = self.w.up
+        # which trajectories each kind of step advances: all of them (most batches are of one
+        # mode) without a masked copy per array and step
+        self._any_up, self._any_ground = bool(up.any()), bool((~up).any())
+        self._up_rows = slice(None) if up.all() else up
+        self._ground_rows = slice(None) if not up.any() else ~up
 
     # ------------------------------------------------------------------ pieces
     def _duty(self, u: np.ndarray) -> np.ndarray:
@@ -197,6 +209,8 @@ class IndependentPhysics:
             return self.V0, self.G0
         r, e = self.robot, self.w.e
         G = 1.0 / (r.R_a * (1.0 + e["alpha_cu"][:, None] * self.dT))
+        if not self.on["Rb"]:
+            return self.V0, G  # V_batt - 0 x I: the supply itself
         V = self.V.copy()
         for _ in range(6 if self.on["Rb"] else 1):
             i = (u * V[:, None] - r.k_e * phid) * G
@@ -208,6 +222,8 @@ class IndependentPhysics:
         """(forward, backward) dry friction magnitudes at speed w (B, 4) (None: at rest, the
         breakaway friction), N m: the paper's b, the Stribeck hump (decay exponent `shape`),
         asymmetry scaling with the load like b, per-wheel differences, a bent axle."""
+        if not (self.on["strib"] or self.on["bend"]):
+            return self._dry_const
         F = self.Fb
         if self.on["strib"]:
             F = F + (self.strib_amp if w is None else
@@ -233,11 +249,10 @@ class IndependentPhysics:
         if self.lagged:
             u_cmd = self._actuator(u_cmd)
         u = self._duty(u_cmd)
-        up = self.w.up
-        for _ in range(int(round(self.h / H_UP)) if up.any() else 0):
-            self._step_up(u, up)
-        if (~up).any():
-            self._step_ground(u, ~up, self.h)
+        for _ in range(int(round(self.h / H_UP)) if self._any_up else 0):
+            self._step_up(u, self._up_rows)
+        if self._any_ground:
+            self._step_ground(u, self._ground_rows, self.h)
         self.t += self.h
 
     def _actuator(self, u_cmd: np.ndarray) -> np.ndarray:
@@ -254,7 +269,7 @@ class IndependentPhysics:
         self.u_act = u_cmd + gap * decay
         return mean
 
-    def _step_up(self, u: np.ndarray, m: np.ndarray) -> None:
+    def _step_up(self, u: np.ndarray, m: np.ndarray | slice) -> None:
         """One step H_UP of the wheels in the air, solved exactly for frozen drive and friction:
         I dw/dt = tau0 - d w - F sign(w) decays exponentially towards (tau0 -+ F) / d; a wheel
         that reaches zero inside the step sticks there if |tau0| is within the breakaway
@@ -278,17 +293,20 @@ class IndependentPhysics:
         w_inf = np.where(fwd, (tau0 - Fp) / d, (tau0 + Fm) / d)
         w_end = w_inf + (w - w_inf) * decay
         crossed = (fwd & (w_end < 0)) | (bwd & (w_end > 0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_c = np.where(crossed, np.log(np.abs((w - w_inf) / np.where(w_inf == 0, 1e-300, w_inf))) / a, h)
-        rest = np.clip(h - t_c, 0.0, h)
-        stick = (tau0 <= Fp0) & (tau0 >= -Fm0)
-        w_rev = np.where(w_end < 0, (tau0 - Fp) / d, (tau0 + Fm) / d) * (1.0 - np.exp(-a * rest))
-        w_new = np.where(fwd | bwd, np.where(crossed, np.where(stick, 0.0, w_rev), w_end), 0.0)
+        if crossed.any():
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_c = np.where(crossed, np.log(np.abs((w - w_inf) / np.where(w_inf == 0, 1e-300, w_inf))) / a, h)
+            rest = np.clip(h - t_c, 0.0, h)
+            stick = (tau0 <= Fp0) & (tau0 >= -Fm0)
+            w_rev = np.where(w_end < 0, (tau0 - Fp) / d, (tau0 + Fm) / d) * (1.0 - np.exp(-a * rest))
+            w_new = np.where(fwd | bwd, np.where(crossed, np.where(stick, 0.0, w_rev), w_end), 0.0)
+        else:  # most steps: no wheel reaches zero inside the step
+            w_new = np.where(fwd | bwd, w_end, 0.0)
         self._book(m, u, V, G, w_new, w_new, h)
         self.phi[m] += (0.5 * h * (w + w_new))[m]
         self.wd[m] = w_new[m]
 
-    def _step_ground(self, u: np.ndarray, m: np.ndarray, h: float) -> None:
+    def _step_ground(self, u: np.ndarray, m: np.ndarray | slice, h: float) -> None:
         """One linearly implicit Euler step on the body speeds (M - h dG/dv) dv = h G(v)."""
         r, e, Rm, Sm = self.robot, self.w.e, self.w.Rm, self.w.Sm
         v = self.v
@@ -296,27 +314,34 @@ class IndependentPhysics:
         self._speed_start = phid + self.slip_rate
         sig = v @ Sm.T
         V, G = self._electrical(u, phid)
-        FN = self.w.FN
         eps, eps_s = GROUND_SIGN_WIDTH, GROUND_SIGN_WIDTH / 10.0
-        sg, dsg = phid / np.sqrt(phid ** 2 + eps ** 2), eps ** 2 / (phid ** 2 + eps ** 2) ** 1.5
-        ss, dss = sig / np.sqrt(sig ** 2 + eps_s ** 2), eps_s ** 2 / (sig ** 2 + eps_s ** 2) ** 1.5
+        q, qs = phid ** 2 + eps ** 2, sig ** 2 + eps_s ** 2
+        sg, dsg = phid / np.sqrt(q), eps ** 2 / q ** 1.5
+        ss, dss = sig / np.sqrt(qs), eps_s ** 2 / qs ** 1.5
         Fp, Fm = self._dry(phid)
-        dry = np.where(sg >= 0, Fp, Fm) + FN * r.C_r * r.r
-        load = 1.0 + r.c * FN
+        dry = np.where(sg >= 0, Fp, Fm) + self.rolling
+        load = self.load
         i = (u * V[:, None] - r.k_e * phid) * G
-        tau = r.eta * r.k_t * i - (load * r.a + e["da"]) * phid - dry * sg - e["d_q"][:, None] * np.abs(phid) * phid
-        tau -= e["A_c"][:, None] * np.sin(e["n_c"][:, None] * self.phi + e["phase"][:, None])
-        dtau = -(r.eta * r.k_t * r.k_e * G + load * r.a + e["da"] + dry * dsg + 2 * e["d_q"][:, None] * np.abs(phid))
-        if np.any(e["screw"]):  # a set screw slips: the wheel transmits at most `torque`
+        # (an effect that is off everywhere is not computed: it would add zeros)
+        tau = r.eta * r.k_t * i - self.d_lin * phid - dry * sg
+        dtau = r.eta * r.k_t * r.k_e * G + load * r.a + e["da"] + dry * dsg
+        if self.on["drag"]:
+            tau = tau - e["d_q"][:, None] * np.abs(phid) * phid
+            dtau = dtau + 2 * e["d_q"][:, None] * np.abs(phid)
+        dtau = -dtau
+        if self.on["cog"]:
+            tau -= e["A_c"][:, None] * np.sin(e["n_c"][:, None] * self.phi + e["phase"][:, None])
+        if self.screw:  # a set screw slips: the wheel transmits at most `torque`
             tau, dtau = self._set_screw(tau, dtau)
-        lr = 1.0 + r.c_r * FN
+        lr = self.roller_load
         fr = -lr * (r.a_r * sig + r.b_r * ss)
         dfr = -lr * (r.a_r + r.b_r * dss)
         psi = self.q[:, 2]
-        Fs = self.w.mass * GRAVITY * np.sin(e["theta_s"])
-        g = (np.einsum("bjk,bj->bk", Rm, tau) + fr @ Sm
-             + np.stack([Fs * np.cos(e["psi_s"] - psi) + self.w.mass * v[:, 2] * v[:, 1],
-                         Fs * np.sin(e["psi_s"] - psi) - self.w.mass * v[:, 2] * v[:, 0], np.zeros_like(psi)], axis=1))
+        Fs = self.Fs
+        pull = np.zeros_like(v)  # the slope's pull and the Coriolis term, body frame (no torque)
+        pull[:, 0] = Fs * np.cos(e["psi_s"] - psi) + self.w.mass * v[:, 2] * v[:, 1]
+        pull[:, 1] = Fs * np.sin(e["psi_s"] - psi) - self.w.mass * v[:, 2] * v[:, 0]
+        g = np.einsum("bjk,bj->bk", Rm, tau) + fr @ Sm + pull
         J = np.einsum("bji,bj,bjk->bik", Rm, dtau, Rm) + np.einsum("ji,bj,jk->bik", Sm, dfr, Sm)
         dv = np.linalg.solve(self.w.M - h * J, h * g[:, :, None])[:, :, 0]
         v_new = v + dv
@@ -324,7 +349,10 @@ class IndependentPhysics:
         motor_speed = phid_new + self.slip_rate
         self._book(m, u, V, G, phid_new, motor_speed, h)
         c, s = np.cos(psi), np.sin(psi)
-        vw = np.stack([c * v_new[:, 0] - s * v_new[:, 1], s * v_new[:, 0] + c * v_new[:, 1], v_new[:, 2]], axis=1)
+        vw = np.empty_like(v_new)
+        vw[:, 0] = c * v_new[:, 0] - s * v_new[:, 1]
+        vw[:, 1] = s * v_new[:, 0] + c * v_new[:, 1]
+        vw[:, 2] = v_new[:, 2]
         self.q[m] += h * vw[m]
         self.v[m] = v_new[m]
         self.phi[m] += h * motor_speed[m]
@@ -352,9 +380,9 @@ class IndependentPhysics:
         over the step (the start values are the last step's end values, at the step's duties)."""
         r, e = self.robot, self.w.e
         i = (u * V[:, None] - r.k_e * motor_speed) * G
-        I = np.sum(u * i, axis=1) + (r.I_0 + e["I_q"])
+        I = np.add.reduce(u * i, axis=1) + self.I_idle
         i_start = (u * V[:, None] - r.k_e * self._speed_start) * G
-        I_start = np.sum(u * i_start, axis=1) + (r.I_0 + e["I_q"])
+        I_start = np.add.reduce(u * i_start, axis=1) + self.I_idle
         self.E_batt[m] += (0.5 * h * V * (I + I_start))[m]
         if self.on["heat"]:
             i2 = 0.5 * (i ** 2 + i_start ** 2)
@@ -419,8 +447,14 @@ def simulate_batch(robots, scenarios, t_cmd, u_cmd, t_end: float, *, dt: float =
     ph = IndependentPhysics(robot, scen)
     per = max(1, int(round(dt / ph.h)))
     n_steps = int(round(t_end / dt))
-    cmd = lambda n: U[:, k] if (k := int(np.searchsorted(t_cmd, n * dt + 1e-9, side="right")) - 1) >= 0 \
-        else np.zeros((B, 4))  # noqa: E731
+    held: dict[int, np.ndarray] = {}  # one array per command: the deadband's duty is computed once per command
+
+    def cmd(n: int) -> np.ndarray:
+        k = int(np.searchsorted(t_cmd, n * dt + 1e-9, side="right")) - 1
+        if k not in held:
+            held[k] = U[:, k] if k >= 0 else np.zeros((B, 4))
+        return held[k]
+
     u = cmd(0)
     recs = [_record(ph, u)]
     lagged = bool(np.any(ph.w.lag))
