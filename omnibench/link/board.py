@@ -166,6 +166,7 @@ class Board:
             self._port.reset_input_buffer()
         except (serial.SerialException, OSError):
             pass
+        self._deframer.resync()  # a board already sending (telemetry left running) is joined mid-frame
         start = time.monotonic()
         deadline = start + timeout
         hello: Message | None = None

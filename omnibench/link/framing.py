@@ -122,6 +122,16 @@ class Deframer:
         self.stats = DeframerStats()
         self._buf = bytearray()
         self._overflow = False
+        self._unsynced = False
+
+    def resync(self) -> None:
+        """Start again mid-stream (the port opened, or its input was flushed, while the other
+        side was sending): the bytes up to the next delimiter may be the tail of a frame. That
+        first chunk is delivered if it is a whole valid frame and otherwise dropped without
+        counting a CRC or framing error: the link did not corrupt it, the reader came in late."""
+        self._buf.clear()
+        self._overflow = False
+        self._unsynced = True
 
     def feed(self, data: bytes) -> list[bytes]:
         """Consume `data`; return the bodies (header + payload) of valid frames completed."""
@@ -138,6 +148,15 @@ class Deframer:
             self._buf.clear()
             self._overflow = False
             start = end + 1
+            if self._unsynced and not overflow:
+                self._unsynced = False
+                try:
+                    out.append(decode_chunk(chunk, self.crc))
+                    self.stats.frames += 1
+                except FrameError:
+                    pass  # the tail of a frame sent before this reader started
+                continue
+            self._unsynced = False
             if overflow:
                 # Too long to be one frame: count it, but its tail may be an intact frame
                 # whose leading delimiter was lost.

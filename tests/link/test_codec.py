@@ -161,6 +161,33 @@ def test_frame_after_garbage_is_recovered(garbage: bytes, seq: int, with_delimit
     assert [CODEC.decode_raw(b).seq for b in bodies][-1:] == [seq]
 
 
+@given(cut=st.integers(1, 40))
+def test_a_reader_that_starts_mid_frame_counts_no_link_error(cut: int) -> None:
+    """Opening a port (or flushing its input) while the board sends telemetry starts the stream
+    inside a frame: after `resync` that tail is dropped without a CRC or framing error, a whole
+    frame at the cut is delivered, and the errors of the stream after it still count."""
+    frames = [CODEC.frame_raw("ACK", seq, {"cmd_id": 2, "cmd_seq": seq, "status": 0, "time": 99}) for seq in range(3)]
+    stream = b"".join(frames)
+    cut = min(cut, len(frames[0]) - 2)  # at least one byte of the first frame is left
+    d = CODEC.deframer()
+    d.resync()
+    bodies = d.feed(stream[cut:])
+    assert [CODEC.decode_raw(b).seq for b in bodies] == [1, 2]
+    assert d.stats.crc_errors == 0 and d.stats.framing_errors == 0
+    # the same bytes read without resync: the tail is an error (what a clean link used to report)
+    plain = CODEC.deframer()
+    assert [CODEC.decode_raw(b).seq for b in plain.feed(stream[cut:])] == [1, 2]
+    assert plain.stats.crc_errors + plain.stats.framing_errors == 1
+    # a cut exactly at a frame boundary loses nothing
+    d.resync()
+    assert [CODEC.decode_raw(b).seq for b in d.feed(stream)] == [0, 1, 2]
+    # after the first chunk, a corrupted frame counts again
+    bad = bytearray(frames[1])
+    bad[2] ^= 0x5A
+    d.feed(bytes(bad))
+    assert d.stats.crc_errors + d.stats.framing_errors == 1
+
+
 @settings(max_examples=200, deadline=None)
 @given(pos=st.integers(0, 40), flip=st.integers(1, 255))
 def test_any_single_corrupted_byte_is_rejected(pos: int, flip: int) -> None:
