@@ -139,6 +139,7 @@ class Predictor:
         self._cache: OrderedDict[tuple[tuple, str, int | None], np.ndarray] = OrderedDict()
         self._cached_numbers = 0
         self._indices: dict[tuple, np.ndarray] = {}
+        self._gathers: dict[int, tuple[_Group, np.ndarray, np.ndarray, np.ndarray, list[str]]] = {}
         self._substeps: dict[tuple[str, ...], int] = {}
         self._mode_substeps: dict[tuple[str, ...], int] = {}
         self._up_substeps: int | None = None
@@ -405,6 +406,12 @@ class Predictor:
         # back to parameter-set-major rows (set q, trajectory k at q * n + k), repeats copied from their first
         if P > 1 or m < n:
             res.array = res.array[(np.arange(P)[:, None] + inverse[None, :] * P).ravel()]
+        if g.extract and all(ex[0] == "sweep" for ex in g.extract):
+            # steady states: every entry is one recorded signal's last sample, gathered at once
+            traj, col, pos = self._sweep_gather(g, res.columns, idx)
+            out = np.empty((P, len(idx)))
+            out[:, pos] = res.array[(np.arange(P) * n)[:, None] + traj[None, :], -1, col[None, :]]
+            return out
         slopes = self._drive_slopes(g, res, shift, P)
         row = np.full(len(self.entries), np.nan)
         out = np.empty((P, len(idx)))
@@ -413,6 +420,18 @@ class Predictor:
                 self._extract(row, res, q * n + k, ex, shift, None if slopes is None else slopes[q * n + k])
             out[q] = row[idx]
         return out
+
+    def _sweep_gather(self, g: _Group, columns: list[str], idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(trajectory, recorded column, position in `idx`) of every entry of a sweep group: the
+        entry is that column's last sample (`_extract`'s "sweep" case, all entries at once)."""
+        got = self._gathers.get(id(g))
+        if got is None or got[0] is not g or got[4] != columns:
+            where = {int(k): i for i, k in enumerate(idx)}
+            rows = [(b, columns.index(f"phi_dot{j}_free" if sig == "omega" else f"i{j}"), where[k])
+                    for b, ex in enumerate(g.extract) for sig, j, k in ex[1]]
+            traj, col, pos = (np.array(c, dtype=int) for c in zip(*rows)) if rows else (np.zeros(0, dtype=int),) * 3
+            got = self._gathers[id(g)] = (g, traj, col, pos, list(columns))
+        return got[1], got[2], got[3]
 
     @staticmethod
     def _drive_slopes(g: _Group, res, shift: float, copies: int) -> np.ndarray | None:

@@ -8,9 +8,9 @@ machine and code version.
 
 How it is made fast (issue 2; `benchmarks/simulate.py` measures it):
   - trajectories are integrated in groups of WIDTH lanes in lockstep, stored as structure of
-    arrays (element i of lane k at i * WIDTH + k): each arithmetic instruction works on WIDTH
-    trajectories at once (AVX2: four doubles). Hooks are written for one trajectory and are
-    rewritten into lane form from their own source (`omnibench.model.lanes`); so is each
+    arrays (element i of lane k at i * WIDTH + k): each arithmetic instruction works on several
+    trajectories at once (WIDTH 8: two AVX2 registers of four doubles). Hooks are written for
+    one trajectory and are rewritten into lane form from their own source (`omnibench.model.lanes`); so is each
     section of the derivative below. Lanes of a group share sub-steps, mode and the set of
     enabled terms (those decide branches); a short group is padded with copies of its first
     lane. A trajectory's numbers do not depend on its batch up to rounding: the compiler may
@@ -102,10 +102,14 @@ STICK_PROBE = 1e-6  # rad/s
 # depend on its batch. lam_phi = lam_sigma = 0 (the default) is the fixed count, bit for bit.
 ADAPT_LIMITS = {METHOD_HEUN: 1.8, METHOD_RK4: 2.5}
 ADAPT_MARGIN = 2.0
-# Trajectories per lane group: four doubles fill an AVX2 register. OMNIBENCH_KERNEL_WIDTH=1
-# gives the plain form (one trajectory per group, hooks as written): benchmarks/simulate.py
-# --compare-width measures what the lane form buys.
-WIDTH = int(os.environ.get("OMNIBENCH_KERNEL_WIDTH", "4"))
+# Trajectories per lane group. Eight, not the four doubles of one AVX2 register: each operation
+# then issues two independent vector instructions the core overlaps (issue 34, `omnibench fit` on
+# a clean campaign's runs, one thread: the fit's CPU 3.78 -> 3.03 s, the per-wheel fits 0.77 ->
+# 0.56 s with the host's code, 3.3 -> 2.8 s with AVX2-only code (NUMBA_CPU_NAME=haswell); the
+# model file the same, bit for bit). OMNIBENCH_KERNEL_WIDTH=1 gives the plain form (one
+# trajectory per group, hooks as written): benchmarks/simulate.py --compare-width measures what
+# the lane form buys.
+WIDTH = int(os.environ.get("OMNIBENCH_KERNEL_WIDTH", "8"))
 if WIDTH not in (1, 2, 4, 8):
     raise ValueError(f"OMNIBENCH_KERNEL_WIDTH={WIDTH}: use 1, 2, 4 or 8")
 

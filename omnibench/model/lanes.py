@@ -1,8 +1,8 @@
 """Lane form of per-trajectory code: the kernel integrates W trajectories at once.
 
 The kernel keeps a group of W trajectories in structure-of-arrays form (element i of lane k
-at index i * W + k), so that each arithmetic instruction works on W trajectories (AVX2: four
-doubles). Hooks and the kernel's own sections are written for ONE trajectory with flat
+at index i * W + k), so that each arithmetic instruction works on W trajectories (kernel.WIDTH:
+eight, two AVX2 registers of four doubles). Hooks and the kernel's own sections are written for ONE trajectory with flat
 element indexing (`out[j]`, `p[0]`, `ctx[CTX_R]`); this module rewrites such code for lane k:
 every subscript of a lane array, `a[i]`, becomes `a[i * W + k]`. The physics is written once.
 
