@@ -20,10 +20,10 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
-import pandas as pd
 
 from omnibench.model import geometry, kernel
 from omnibench.model.context import GRAVITY
@@ -32,6 +32,9 @@ from omnibench.model.robot import Robot
 from omnibench.model.scenario import Scenario
 from omnibench.model.stiffness import decay_rates, ground_split
 from omnibench.model.terms import Layout, layout
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 # numba's OpenMP threading layer (GNU libgomp here) lets its worker threads spin between parallel
 # regions; a fit calls the parallel kernel ~90 times with Python in between, and on a machine with
@@ -262,6 +265,10 @@ class BatchResult:
 
 
 def _frame(t: np.ndarray, rec: np.ndarray, columns: list[str]) -> pd.DataFrame:
+    # pandas only here (~0.3 s to import): the simulated board and the fits' predictions never
+    # build a frame, so `omnibench sim serve` starts without it
+    import pandas as pd
+
     df = pd.DataFrame(rec, columns=columns)
     df.insert(0, "t", t)
     free = df[["phi_dot1_free", "phi_dot2_free", "phi_dot3_free", "phi_dot4_free"]].to_numpy()

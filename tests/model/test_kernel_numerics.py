@@ -126,12 +126,12 @@ EFFECTS_ON = {"winding_heating": {"theta": 8.0, "tau_th": 20.0, "alpha_cu": 0.00
 @pytest.mark.parametrize("mode", ["ground", "upside_down"])
 @pytest.mark.parametrize("effects", [{}, EFFECTS_ON], ids=["paper_terms", "effects_on"])
 def test_full_and_padded_lane_groups_equal_single_trajectories(method, mode, effects):
-    """Six parameter sets sharing one lane group key: a full group of kernel.WIDTH plus a padded
-    one, in both orders. Each equals its own single run to rounding (the compiler may fuse a
-    multiply-add differently in another lane), and no lane copies a neighbour."""
+    """kernel.WIDTH + 2 parameter sets sharing one lane group key: a full group of kernel.WIDTH
+    plus a padded one, in both orders. Each equals its own single run to rounding (the compiler
+    may fuse a multiply-add differently in another lane), and no lane copies a neighbour."""
     base = default_robot()
-    robots = [base.replace(a=base.a * s, b_r=base.b_r * (2 - s)) for s in (0.9, 0.95, 1.0, 1.05, 1.1, 1.15)]
-    assert len(robots) > kernel.WIDTH
+    robots = [base.replace(a=base.a * s, b_r=base.b_r * (2 - s)) for s in np.linspace(0.9, 1.15, kernel.WIDTH + 2)]
+    assert kernel.WIDTH < len(robots) < 2 * kernel.WIDTH
     scenario = Scenario(mode=mode, effects=effects)
     run = lambda rs: simulate_batch(rs, scenario, T_CMD, U_CMD, 1.5, method=method, record_every=10)  # noqa: E731
     batch, reverse = run(robots), run(robots[::-1])
