@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="also run with git ref REF's omnibench and print both results side by side")
     args = ap.parse_args(argv)
 
-    from omnibench.analysis.diagnosis import diagnose
-    from omnibench.analysis.diagnosis.loro import heldout_runs, leave_one_firmware_out
+    from omnibench.analysis.diagnosis import diagnose, loro
+    from omnibench.analysis.diagnosis.loro import heldout_runs
     from omnibench.analysis.observations import Observations
     from omnibench.model import default_robot
     from omnibench.runs.tfm import import_tfm
@@ -89,19 +89,24 @@ def main(argv: list[str] | None = None) -> int:
         print(held.text())
         print(f"(leave-one-run-out: {time.time() - t0:.0f} s)\n")
         print(timing_table(obs, name, held))
-        t0 = time.time()
-        lofo = leave_one_firmware_out(d, obs, progress=lambda s: say(f"lofo: {s}"))
-        for e in lofo.errors:
-            e.run = name(e.run)
-        lofo.sketch = {name(r): v for r, v in lofo.sketch.items()}
-        lofo.trained_on = {name(r): [name(x) for x in v] for r, v in lofo.trained_on.items()}
-        lofo.worse = {name(r): v for r, v in lofo.worse.items()}
-        lofo.left_out = [name(r) for r in lofo.left_out]
-        print()
-        print(lofo.text())
-        print(f"(leave-one-firmware-out: {time.time() - t0:.0f} s)")
+        lofo_json = None
+        if hasattr(loro, "leave_one_firmware_out"):  # since 04deae5: --before an older ref runs without it
+            t0 = time.time()
+            lofo = loro.leave_one_firmware_out(d, obs, progress=lambda s: say(f"lofo: {s}"))
+            for e in lofo.errors:
+                e.run = name(e.run)
+            lofo.sketch = {name(r): v for r, v in lofo.sketch.items()}
+            lofo.trained_on = {name(r): [name(x) for x in v] for r, v in lofo.trained_on.items()}
+            lofo.worse = {name(r): v for r, v in lofo.worse.items()}
+            lofo.left_out = [name(r) for r in lofo.left_out]
+            print()
+            print(lofo.text())
+            print(f"(leave-one-firmware-out: {time.time() - t0:.0f} s)")
+            lofo_json = lofo.to_json()
+        else:
+            print("(this omnibench has no leave-one-firmware-out)")
         now = {"diagnosis": d.to_json(), "leave_one_run_out": held.to_json(),
-               "leave_one_firmware_out": lofo.to_json(), "seconds": {"diagnose": t_diag}}
+               "leave_one_firmware_out": lofo_json, "seconds": {"diagnose": t_diag}}
         if args.json:
             Path(args.json).write_text(json.dumps(now, indent=2))
     if args.before:
