@@ -84,6 +84,27 @@ def lock_directory(path: str | os.PathLike) -> int:
     return fd
 
 
+@contextlib.contextmanager
+def waiting_lock(path: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive lock on file `path` (created), waiting while another process holds it:
+    one process at a time does the work behind it (the physics kernel's compile). Where the file
+    cannot be made or locked, the work runs unlocked."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except OSError:
+                pass
+        yield
+    finally:
+        os.close(fd)
+
+
 LOCK_FILE = "omnibench.lock"
 
 

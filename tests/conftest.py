@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 from pathlib import Path
@@ -119,27 +118,6 @@ class _DurationRecorder:
         DURATIONS.write_text(json.dumps(dict(sorted(merged.items())), indent=0) + "\n")
 
 
-# The physics kernel compiles once per machine and code version (~35 s of CPU) into numba's disk
-# cache. Under xdist the workers would compile it at the same time; a lock in the cache folder
-# lets one compile while the others wait, then load the compiled kernel from the cache.
-def _compile_one_at_a_time() -> None:
-    from omnibench.model import kernel
-
-    compile_ = kernel._compile
-
-    def locked(module) -> None:
-        with open(kernel._cache_dir() / ".compile.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-            try:
-                compile_(module)
-            finally:
-                fcntl.flock(lock, fcntl.LOCK_UN)
-
-    kernel._compile = locked
-
-
 def pytest_configure(config):
-    if hasattr(config, "workerinput"):
-        _compile_one_at_a_time()
-    elif config.getoption("--store-durations"):
+    if not hasattr(config, "workerinput") and config.getoption("--store-durations"):
         config.pluginmanager.register(_DurationRecorder(), "omnibench-durations")

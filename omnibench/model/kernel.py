@@ -51,6 +51,7 @@ import tempfile
 import textwrap
 from pathlib import Path
 
+from omnibench.locks import waiting_lock
 from omnibench.model import context, fpu, lanes  # noqa: F401  (fpu: the generated kernel imports it)
 from omnibench.model.terms import HOOKS, Layout, layout
 from omnibench.resources import cache_root
@@ -955,9 +956,14 @@ def _compile(module) -> None:
     digits (~1e-5 SE) than a re-run. Every process now runs the cached code. When the child cannot
     compile it (a term registered only in this process: the child imports the generated file, and
     through it the hooks' modules, but runs none of this process's registrations), it is compiled
-    here, as before. tests/model/test_kernel_cache.py checks a cold cache against a warm one."""
+    here, as before. Processes that find the cache cold at once (test workers, a campaign and its
+    simulated board) take turns on a lock in the cache folder: one compiles, the others then load.
+    tests/model/test_kernel_cache.py checks a cold cache against a warm one."""
     if not _cached_on_disk(module):
-        _compile_in_child(Path(module.__file__))
+        path = Path(module.__file__)
+        with waiting_lock(path.parent / ".compile.lock"):
+            if not _cached_on_disk(module):  # compiled by another process while this one waited?
+                _compile_in_child(path)
     _compile_here(module)
 
 

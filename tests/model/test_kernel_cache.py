@@ -67,3 +67,43 @@ def test_a_kernel_the_child_cannot_compile_is_compiled_here(tmp_path, monkeypatc
     module.__file__ = str(tmp_path / "omnibench_kernel_test.py")
     kernel._compile(module)
     assert tried == [Path(module.__file__)] and compiled == [module]
+
+
+def test_a_process_that_waited_for_the_compile_lock_loads_what_the_holder_compiled(tmp_path, monkeypatch) -> None:
+    """Test workers (or a campaign and its simulated board) on a cold cache: one compiles, the
+    others wait on the lock, find the kernel cached and do not compile it again."""
+    answers = iter([False, True])  # cold when first looked at, cached once the lock is ours
+    monkeypatch.setattr(kernel, "_cached_on_disk", lambda module: next(answers))
+    tried: list[Path] = []
+    monkeypatch.setattr(kernel, "_compile_in_child", lambda path: tried.append(path) or True)
+    compiled: list[object] = []
+    monkeypatch.setattr(kernel, "_compile_here", compiled.append)
+    module = type(sys)("omnibench_kernel_test")
+    module.__file__ = str(tmp_path / "omnibench_kernel_test.py")
+    kernel._compile(module)
+    assert tried == [] and compiled == [module]
+    assert (tmp_path / ".compile.lock").exists()
+
+
+HOLD = """
+import sys, time
+from pathlib import Path
+from omnibench.locks import waiting_lock
+with waiting_lock(sys.argv[1]):
+    print("holding", flush=True)
+    time.sleep(1.0)
+    Path(sys.argv[2]).write_text("done")
+"""
+
+
+def test_the_compile_lock_waits_for_its_holder(tmp_path) -> None:
+    from omnibench.locks import waiting_lock
+
+    lock, done = tmp_path / ".compile.lock", tmp_path / "done"
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(lock), str(done)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "holding"
+        with waiting_lock(lock):
+            assert done.read_text() == "done"  # the holder finished its work before we got the lock
+    finally:
+        holder.wait(timeout=30)
