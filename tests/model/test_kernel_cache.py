@@ -56,31 +56,32 @@ def test_a_cold_cache_gives_the_numbers_of_a_warm_one_bit_for_bit(tmp_path) -> N
     assert np.array_equal(cold, warm)
 
 
-def test_a_kernel_the_child_cannot_compile_is_compiled_here(tmp_path, monkeypatch) -> None:
-    """A term registered only in this process: the child fails, the compile happens here."""
-    monkeypatch.setattr(kernel, "_cached_on_disk", lambda module: False)
+def _compile_recorded(tmp_path: Path, monkeypatch, cached: list[bool], child_ok: bool) -> tuple[list, list, object]:
+    """kernel._compile of a stand-in module with the disk cache answering `cached` in turn and the
+    child's compile succeeding or not: (paths the child was asked to compile, modules compiled here, module)."""
+    answers = iter(cached)
+    monkeypatch.setattr(kernel, "_cached_on_disk", lambda module: next(answers))
     tried: list[Path] = []
-    monkeypatch.setattr(kernel, "_compile_in_child", lambda path: tried.append(path) or False)
+    monkeypatch.setattr(kernel, "_compile_in_child", lambda path: tried.append(path) or child_ok)
     compiled: list[object] = []
     monkeypatch.setattr(kernel, "_compile_here", compiled.append)
     module = type(sys)("omnibench_kernel_test")
     module.__file__ = str(tmp_path / "omnibench_kernel_test.py")
     kernel._compile(module)
+    return tried, compiled, module
+
+
+def test_a_kernel_the_child_cannot_compile_is_compiled_here(tmp_path, monkeypatch) -> None:
+    """A term registered only in this process: the child fails, the compile happens here."""
+    tried, compiled, module = _compile_recorded(tmp_path, monkeypatch, [False, False], child_ok=False)
     assert tried == [Path(module.__file__)] and compiled == [module]
 
 
 def test_a_process_that_waited_for_the_compile_lock_loads_what_the_holder_compiled(tmp_path, monkeypatch) -> None:
     """Test workers (or a campaign and its simulated board) on a cold cache: one compiles, the
     others wait on the lock, find the kernel cached and do not compile it again."""
-    answers = iter([False, True])  # cold when first looked at, cached once the lock is ours
-    monkeypatch.setattr(kernel, "_cached_on_disk", lambda module: next(answers))
-    tried: list[Path] = []
-    monkeypatch.setattr(kernel, "_compile_in_child", lambda path: tried.append(path) or True)
-    compiled: list[object] = []
-    monkeypatch.setattr(kernel, "_compile_here", compiled.append)
-    module = type(sys)("omnibench_kernel_test")
-    module.__file__ = str(tmp_path / "omnibench_kernel_test.py")
-    kernel._compile(module)
+    # cold when first looked at, cached once the lock is ours
+    tried, compiled, module = _compile_recorded(tmp_path, monkeypatch, [False, True], child_ok=True)
     assert tried == [] and compiled == [module]
     assert (tmp_path / ".compile.lock").exists()
 
