@@ -961,10 +961,27 @@ def _compile(module) -> None:
     tests/model/test_kernel_cache.py checks a cold cache against a warm one."""
     if not _cached_on_disk(module):
         path = Path(module.__file__)
+        _tell_a_person(COMPILING)
         with waiting_lock(path.parent / ".compile.lock"):
             if not _cached_on_disk(module):  # compiled by another process while this one waited?
                 _compile_in_child(path)
     _compile_here(module)
+
+
+#: Said on a terminal before the compile (or the wait for another process's): the first simulation
+#: on a machine is otherwise a silent half minute to two minutes.
+COMPILING = ("omnibench: compiling the physics kernel for this machine and code version "
+             "(once; about 30 s, up to 2 min on a slow machine)")
+
+
+def _tell_a_person(line: str) -> None:
+    """Print `line` on stderr when a person reads it there (a terminal), never into a pipe or file."""
+    stream = sys.stderr
+    try:
+        if stream is not None and stream.isatty():
+            print(line, file=stream, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _cached_on_disk(module) -> bool:

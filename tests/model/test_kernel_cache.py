@@ -108,3 +108,32 @@ def test_the_compile_lock_waits_for_its_holder(tmp_path) -> None:
             assert done.read_text() == "done"  # the holder finished its work before we got the lock
     finally:
         holder.wait(timeout=30)
+
+
+class _Terminal:
+    """A stderr that says whether it is a terminal, and keeps what is written."""
+
+    def __init__(self, tty: bool) -> None:
+        self.tty, self.text = tty, ""
+
+    def isatty(self) -> bool:
+        return self.tty
+
+    def write(self, s: str) -> int:
+        self.text += s
+        return len(s)
+
+    def flush(self) -> None:
+        pass
+
+
+def test_a_person_at_a_terminal_is_told_the_kernel_is_compiling_a_pipe_is_not(tmp_path, monkeypatch) -> None:
+    for tty in (True, False):
+        err = _Terminal(tty)
+        monkeypatch.setattr(sys, "stderr", err)
+        _compile_recorded(tmp_path, monkeypatch, [False, False], child_ok=True)
+        assert (err.text == kernel.COMPILING + "\n") is tty, err.text
+    err = _Terminal(True)
+    monkeypatch.setattr(sys, "stderr", err)
+    _compile_recorded(tmp_path, monkeypatch, [True], child_ok=True)  # cached: nothing to say
+    assert err.text == ""
