@@ -985,10 +985,19 @@ def _tell_a_person(line: str) -> None:
 
 
 def _cached_on_disk(module) -> bool:
-    """Whether numba's cache folder holds an index for both entry points of this generated file."""
-    cache = Path(module.__file__).parent / "__pycache__"
-    stem = Path(module.__file__).stem
-    return all(any(cache.glob(f"{stem}.{fn}-*.nbi")) for fn in ("run", "run_serial"))
+    """Whether numba's cache holds an index for both entry points of this generated file (where
+    numba keeps it: beside the file, or under NUMBA_CACHE_DIR when that is set)."""
+    for fn in (module.run, module.run_serial):
+        try:
+            index = Path(fn._cache._cache_path) / fn._cache._cache_file._index_name
+        except AttributeError:  # another numba's internals: look beside the file
+            path = Path(module.__file__)
+            if not any((path.parent / "__pycache__").glob(f"{path.stem}.{fn.__name__}-*.nbi")):
+                return False
+            continue
+        if not index.exists():
+            return False
+    return True
 
 
 def _compile_in_child(path: Path) -> bool:
@@ -996,7 +1005,7 @@ def _compile_in_child(path: Path) -> bool:
     import subprocess
 
     code = "import sys; from omnibench.model import kernel; kernel._compile_file(sys.argv[1])"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(os.path.abspath(p or os.curdir) for p in sys.path))
     try:
         done = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, check=False)
     except OSError:

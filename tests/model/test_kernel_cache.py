@@ -137,3 +137,14 @@ def test_a_person_at_a_terminal_is_told_the_kernel_is_compiling_a_pipe_is_not(tm
     monkeypatch.setattr(sys, "stderr", err)
     _compile_recorded(tmp_path, monkeypatch, [True], child_ok=True)  # cached: nothing to say
     assert err.text == ""
+
+
+def test_the_cache_is_looked_up_where_numba_keeps_it(tmp_path) -> None:
+    module = kernel.load_kernel()  # compiled or loaded: in numba's cache now
+    assert kernel._cached_on_disk(module)
+    copy = tmp_path / Path(module.__file__).name  # the same source in a folder numba never cached
+    copy.write_text(Path(module.__file__).read_text())
+    try:
+        assert not kernel._cached_on_disk(kernel._exec_generated(copy))
+    finally:
+        sys.modules[Path(module.__file__).stem] = module  # _exec_generated registered the copy
