@@ -45,6 +45,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import inspect
+import logging
 import os
 import sys
 import tempfile
@@ -963,8 +964,11 @@ def _compile(module) -> None:
         path = Path(module.__file__)
         _tell_a_person(COMPILING)
         with waiting_lock(path.parent / ".compile.lock"):
-            if not _cached_on_disk(module):  # compiled by another process while this one waited?
-                _compile_in_child(path)
+            # compiled by another process while this one waited? if not, by a child; if the
+            # child cannot, here, still holding the lock (the waiting processes then load it)
+            if not _cached_on_disk(module) and not _compile_in_child(path):
+                _compile_here(module)
+                return
     _compile_here(module)
 
 
@@ -985,19 +989,26 @@ def _tell_a_person(line: str) -> None:
 
 
 def _cached_on_disk(module) -> bool:
-    """Whether numba's cache holds an index for both entry points of this generated file (where
-    numba keeps it: beside the file, or under NUMBA_CACHE_DIR when that is set)."""
+    """Whether numba's cache holds both entry points of this generated file for this machine:
+    its index (beside the file, or under NUMBA_CACHE_DIR) has an entry for the simulator's
+    signature, this CPU and this source (numba drops an index of another source or numba
+    version). Read through numba's own cache objects; with another numba's internals, whether
+    an index file is there at all."""
+    sig = _run_signature()
     for fn in (module.run, module.run_serial):
         try:
-            index = Path(fn._cache._cache_path) / fn._cache._cache_file._index_name
-        except AttributeError:  # another numba's internals: look beside the file
+            cache = fn._cache
+            if cache._index_key(sig, fn.targetctx.codegen()) not in cache._cache_file._load_index():
+                return False
+        except AttributeError:
             path = Path(module.__file__)
             if not any((path.parent / "__pycache__").glob(f"{path.stem}.{fn.__name__}-*.nbi")):
                 return False
-            continue
-        if not index.exists():
-            return False
     return True
+
+
+#: s a child may take to compile the kernel (~30 s, 2 min on a slow machine) before it is given up
+CHILD_COMPILE_TIMEOUT_S = 1800.0
 
 
 def _compile_in_child(path: Path) -> bool:
@@ -1006,10 +1017,17 @@ def _compile_in_child(path: Path) -> bool:
 
     code = "import sys; from omnibench.model import kernel; kernel._compile_file(sys.argv[1])"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(os.path.abspath(p or os.curdir) for p in sys.path))
+    flags = subprocess._args_from_interpreter_flags()  # type: ignore[attr-defined]  # -s, -I, -X ... as this one
     try:
-        done = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, check=False)
-    except OSError:
+        done = subprocess.run([sys.executable, *flags, "-c", code, str(path)], env=env, capture_output=True,
+                              check=False, timeout=CHILD_COMPILE_TIMEOUT_S)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        logging.getLogger(__name__).debug("kernel compile in a child failed: %s", exc)
         return False
+    if done.returncode != 0:
+        tail = done.stderr.decode(errors="replace").strip().splitlines()[-1:]
+        logging.getLogger(__name__).debug("kernel compile in a child failed (exit %d): %s", done.returncode,
+                                          tail[0] if tail else "")
     return done.returncode == 0
 
 

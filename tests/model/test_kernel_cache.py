@@ -39,6 +39,7 @@ print(len(mod.run.stats.cache_misses) + len(mod.run_serial.stats.cache_misses))
 def _simulate(cache: Path, out: Path) -> int:
     """Run SIMULATE in a fresh Python with numba's cache in `cache`; the compiles it did itself."""
     env = dict(os.environ, OMNIBENCH_CACHE=str(cache), NUMBA_NUM_THREADS="1")
+    env.pop("NUMBA_CACHE_DIR", None)  # numba's cache beside the kernel, in `cache`
     done = subprocess.run([sys.executable, "-c", SIMULATE, str(out)], env=env, capture_output=True, text=True,
                           timeout=900, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -140,11 +141,30 @@ def test_a_person_at_a_terminal_is_told_the_kernel_is_compiling_a_pipe_is_not(tm
 
 
 def test_the_cache_is_looked_up_where_numba_keeps_it(tmp_path) -> None:
+    """Through numba's own index: an entry for this signature, CPU and source, not just a file."""
     module = kernel.load_kernel()  # compiled or loaded: in numba's cache now
     assert kernel._cached_on_disk(module)
-    copy = tmp_path / Path(module.__file__).name  # the same source in a folder numba never cached
-    copy.write_text(Path(module.__file__).read_text())
+    stem = Path(module.__file__).stem
+    cached = Path(module.run._cache._cache_path)
+    source = Path(module.__file__).read_text()
+
+    def copy_of(text: str, folder: str, with_cache: bool):
+        """The generated file with `text` in a new folder (numba's files beside it if with_cache)."""
+        where = tmp_path / folder
+        where.mkdir()
+        (where / f"{stem}.py").write_text(text)
+        copy = kernel._exec_generated(where / f"{stem}.py")
+        if with_cache:
+            target = Path(copy.run._cache._cache_path)
+            target.mkdir(parents=True, exist_ok=True)
+            for f in cached.glob(f"{stem}.*"):
+                (target / f.name).write_bytes(f.read_bytes())
+        return copy
+
     try:
-        assert not kernel._cached_on_disk(kernel._exec_generated(copy))
+        assert not kernel._cached_on_disk(copy_of(source, "empty", with_cache=False))  # nothing there
+        assert kernel._cached_on_disk(copy_of(source, "same", with_cache=True))  # numba's files, same source
+        # numba's files of another source: its index does not hold this one (a file is not enough)
+        assert not kernel._cached_on_disk(copy_of(source + "\n# changed\n", "stale", with_cache=True))
     finally:
-        sys.modules[Path(module.__file__).stem] = module  # _exec_generated registered the copy
+        sys.modules[stem] = module  # _exec_generated registered the copies under the same name
