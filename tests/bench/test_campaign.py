@@ -48,6 +48,19 @@ def test_campaign_on_sim_writes_report(capsys, tmp_path):
     assert "{'" not in report and "[{" not in report  # no raw Python structures
     assert "error by procedure (NRMSE): sweep " in report and " %" in report
     assert (out / "report.html").is_file()
+    # the README's Python example, run as written on these runs
+    _run_readme_python_example(out / "runs", capsys)
+
+
+def _run_readme_python_example(runs: Path, capsys) -> None:
+    readme = (HERE.parents[1] / "README.md").read_text()
+    block = readme.split("```python\n", 1)[1].split("```", 1)[0]
+    assert '"campaign/runs"' in block
+    exec(compile(block.replace('"campaign/runs"', repr(str(runs))), "README.md", "exec"), {})
+    table = capsys.readouterr().out
+    rows = {line.split()[0]: line for line in table.splitlines() if line.strip()}
+    for name in ("a", "b", "C_r", "a_r"):
+        assert name in rows and rows[name].rstrip().endswith("identified"), table
 
 
 def test_campaign_refuses_a_missing_procedure_file_before_moving(capsys, tmp_path):
