@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 from omnibench import __version__
 from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.errors import Terminated, UserError
+from omnibench.files import save_figure, write_atomic
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 
@@ -180,8 +181,8 @@ def finish_campaign(results: dict[str, Any], out: Path, robot: Robot, t0: float,
     report = write_report(results, out, robot)
     results["report"] = str(report)
     results["report_html"] = str(write_html(report))
-    (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
-                                       encoding="utf-8")
+    write_atomic(out / "campaign.json", json.dumps(json_ready(results), indent=2, default=str) + "\n",
+                 "campaign summary")
     if summary:
         from omnibench.campaign.summary import campaign_summary
 
@@ -458,7 +459,7 @@ def make_plots(results: dict[str, Any], out: Path, robot: Robot) -> dict[str, st
 
 def _save(fig: Any, path: Path, plt: Any) -> str:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return str(path)
 
@@ -519,5 +520,4 @@ def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
                     lines += analysis_lines("validate-energy", after, out)
     lines.append("")
     path = out / "report.md"
-    path.write_text("\n".join(lines), encoding="utf-8")
-    return path
+    return write_atomic(path, "\n".join(lines), "report")
