@@ -97,10 +97,13 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     robot, _, _ = load_robot_file(robot_file)
     for p, f in files.items():
         load_plan(f, robot, expect=p)
-    if not port:
-        raise UserError("no --port given (sim:// for the simulated robot)")
     runs_dir = out / "runs"
     earlier = _runs_of(runs_dir)
+    if resume and not earlier and not (out / "campaign.json").is_file():
+        raise UserError(f"nothing to resume in {out}: it holds no campaign (no runs, no campaign.json); "
+                        "check --out, or start the campaign without --resume")
+    if not port:
+        raise UserError("no --port given (sim:// for the simulated robot)")
     if earlier and not resume:
         raise UserError(f"{runs_dir} already holds runs of a campaign: continue it with --resume, "
                         "or give another --out")
