@@ -335,11 +335,12 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
     if ans.model == "diagnosed":
         added = " and ".join(f"`{s.get('effect')}` ({s.get('title', '')})".replace(" ()", "") for s in ans.added)
         lines.append(f"**Identified**: the declared model plus {added}, which diagnosis added: {n} coefficients, "
-                     "each with its standard error (SE) and 95 % interval (value ± 1.96 SE). "
+                     "each with its standard error (SE) and 95 % interval (the fit's own, as in its table; "
+                     "value ± 1.96 SE for a refitted coefficient). "
                      "*Before* is the declared model's fit, before diagnosis.")
     else:
         lines.append(f"**Identified**: the declared model, {n} coefficients, each with its standard error (SE), "
-                     "95 % interval (value ± 1.96 SE) and identifiability verdict."
+                     "95 % interval (the fit's own, as in the fit table) and identifiability verdict."
                      + (" Diagnosis added nothing: no candidate effect earned its parameters on held-out runs."
                         if ans.heldout else ""))
     lines.append("")
