@@ -34,7 +34,7 @@ import tomli_w
 
 from omnibench import __version__
 from omnibench.errors import UserError
-from omnibench.files import read_toml
+from omnibench.files import MARKER, read_toml, write_atomic
 from omnibench.model.robot import Robot, robot_from_dict
 
 
@@ -85,14 +85,9 @@ def write_model(path: str | Path, result: Any, runs: list[str] | None = None, *,
     data["fit"] = fit_table(result, runs)
     if per_wheel:
         data["fit"]["per_wheel"] = {str(j): fit_table(r, runs)["parameters"] for j, r in per_wheel.items()}
-    header = ("# omnibench model file: the robot file with fitted coefficients (SI units) and, in [fit],\n"
-              "# their standard errors, 95 % intervals, identifiability verdicts and the runs used.\n")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(header + tomli_w.dumps(data), encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"{p}: cannot write the model file ({exc.strerror or exc})") from None
-    return p
+    header = (f"{MARKER} {__version__}: a model file, the robot file with fitted coefficients (SI units)\n"
+              "# and, in [fit], their standard errors, 95 % intervals, identifiability verdicts and the runs used.\n")
+    return write_atomic(p, header + tomli_w.dumps(data), "model file")
 
 
 def load_model(path: str | Path) -> tuple[Robot, dict[str, Any]]:

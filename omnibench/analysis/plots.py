@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from omnibench.errors import UserError
+from omnibench.files import save_figure
 
 if TYPE_CHECKING:
     from omnibench.model.robot import Robot
@@ -75,7 +76,7 @@ def plot_sweep_fit(robot: Robot, obs: Any, residuals: pd.DataFrame, folder: str 
     fig.suptitle("III.i upside-down sweep: measured steady speeds and fitted model (hollow: not fitted)")
     fig.tight_layout()
     path = _out(folder, name)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -106,7 +107,7 @@ def plot_residuals(residuals: pd.DataFrame, folder: str | Path, name: str = "res
     fig.suptitle("Residuals of the fit (hollow: left out of the fit)")
     fig.tight_layout()
     path = _out(folder, name)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -129,7 +130,7 @@ def plot_energy(validation: Any, folder: str | Path, name: str = "energy_current
     axes[-1, 0].set_xlabel("time since step start (s)")
     fig.tight_layout()
     path = _out(folder, name)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -152,6 +153,6 @@ def plot_prediction(pred: Any, folder: str | Path, name: str | None = None) -> P
     fig.suptitle(f"{pred.run} ({pred.procedure}): NRMSE {nr}", fontsize=9)
     fig.tight_layout()
     path = _out(folder, name or f"predict_{pred.run}.png")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

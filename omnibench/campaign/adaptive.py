@@ -40,6 +40,7 @@ from omnibench.analysis.design.planner import Unit, parse_targets, plan, target_
 from omnibench.analysis.design.space import REST, Costs, Limits, Space, sequence_actions, world_actions
 from omnibench.campaign.run import Analyse
 from omnibench.errors import UserError
+from omnibench.files import save_figure, write_atomic
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import World
 from omnibench.runs.store import run_dirs
@@ -716,8 +717,8 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     with open(report, "a", encoding="utf-8") as fh:
         fh.write("\n" + "\n".join(design_lines(summary, out)) + "\n")
     results["report"] = str(report)
-    (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
-                                       encoding="utf-8")
+    write_atomic(out / "campaign.json", json.dumps(json_ready(results), indent=2, default=str) + "\n",
+                 "campaign summary")
     echo(f"report: {report}")
     return results
 
@@ -790,7 +791,7 @@ def design_plot(summary: Mapping[str, Any], path: Path) -> str:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return str(path)
 

@@ -77,17 +77,19 @@ class FitDone:
 
 def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None, free: list[str] | None = None,
              procedures: list[str] | None = None, per_wheel: bool = True, plots: Path | None = None,
-             skip_bad: bool = False, progress: Lines = to_stderr, say: Lines = _silent) -> FitDone:
+             skip_bad: bool = False, force: bool = False, progress: Lines = to_stderr,
+             say: Lines = _silent) -> FitDone:
     """Fit every coefficient the runs measure (weighted least squares through the simulator),
     write the model file `out` and, with `plots`, the figures there.
 
     free: the parameters to fit (default: what the runs measure); procedures: the observation
     tables that enter the fit (default: sweep, forward, lateral); per_wheel: also fit the
-    upside-down sweep of each wheel on its own. progress: skipped runs and the like; say: what the
+    upside-down sweep of each wheel on its own; force: overwrite `out` even if the tool did not
+    write it. progress: skipped runs and the like; say: what the
     text output tells before the fit (nothing in JSON)."""
     robot, _ = model_robot(robot_file)
     good = checked_runs(runs, skip_bad=skip_bad, echo=progress)
-    check_output(out, good)
+    check_output(out, good, force=force)
     if plots is not None:
         check_out_folder(plots, "--plots")
     obs = Observations.from_runs(good, robot)

@@ -75,10 +75,14 @@ class Coefficient:
     verdict: str = ""
     before: tuple[float | None, float | None] | None = None  #: the declared fit's (value, SE)
     added: bool = False  #: a parameter of an effect diagnosis added
+    interval: tuple[float, float] | None = None  #: the fit's own 95 % interval, when it gave one
 
     def ci95(self) -> tuple[float, float] | None:
+        """The 95 % interval: the fit's own (t quantile) when known, else value ± Z95·SE."""
         if self.value is None or not _finite(self.se):
             return None
+        if self.interval is not None:
+            return self.interval
         return self.value - Z95 * self.se, self.value + Z95 * self.se  # type: ignore[operator]
 
     def cells(self) -> dict[str, str]:
@@ -135,7 +139,8 @@ def campaign_answer(stages: dict[str, Any]) -> Answer:
             before = (p.get("value"), p.get("se") if p.get("identifiable", True) else None) if p else None
             ans.coefficients.append(Coefficient(name, (v or {}).get("value"), (v or {}).get("se"),
                                                 units.get(name, ""), "", before,
-                                                added=name in added_params or not p))
+                                                added=name in added_params or not p,
+                                                interval=_interval((v or {}).get("ci95"))))
         for name, p in params.items():  # fitted before, not refitted by diagnosis: kept as fitted
             if name not in ext:
                 ans.coefficients.append(_declared(name, p, verdict_note=" (not refitted by diagnosis)"))
@@ -148,4 +153,11 @@ def campaign_answer(stages: dict[str, Any]) -> Answer:
 def _declared(name: str, p: dict[str, Any], verdict_note: str = "") -> Coefficient:
     se = p.get("se") if p.get("identifiable", True) else None
     return Coefficient(name, p.get("value"), se, p.get("unit", ""), f"{p.get('verdict', '')}{verdict_note}".strip(),
-                       (p.get("value"), se))
+                       (p.get("value"), se), interval=_interval(p.get("ci95")))
+
+
+def _interval(ci: Any) -> tuple[float, float] | None:
+    """A fit's [low, high] 95 % interval when both ends are finite numbers, else None."""
+    if isinstance(ci, (list, tuple)) and len(ci) == 2 and all(_finite(x) for x in ci):
+        return float(ci[0]), float(ci[1])
+    return None

@@ -54,7 +54,7 @@ class DiagnosisDone:
 
 def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None, plots: Path | None = None,
                   candidates: list[str] | None = None, procedures: list[str] | None = None, alpha: float = 1e-3,
-                  max_effects: int = 3, seed: int = 0, loro: bool = False,
+                  max_effects: int = 3, seed: int = 0, loro: bool = False, force: bool = False,
                   progress: Lines = to_stderr) -> DiagnosisDone:
     """Fit the declared model `model` to the runs, find residual structure, add the library
     effects that earn their parameters on held-out run steps; write the extended model to `out`
@@ -62,10 +62,11 @@ def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None,
 
     candidates: only these effects (default: the library); procedures: only these observation
     tables; alpha: family-wise significance level; loro: also leave-one-run-out (an addition that
-    costs a run is a trade-off, left out of the written model). progress: lines as it goes."""
+    costs a run is a trade-off, left out of the written model); force: overwrite `out` even if the
+    tool did not write it. progress: lines as it goes."""
     good = tuple(checked_runs(runs))
     if out is not None:
-        check_output(out, good)
+        check_output(out, good, force=force)
     if plots is not None:
         check_out_folder(plots, "--plots")
     robot = load_robot(model)  # its errors name a robot file: any robot file is a model

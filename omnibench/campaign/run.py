@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 from omnibench import __version__
 from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
 from omnibench.errors import Terminated, UserError
+from omnibench.files import save_figure, write_atomic
 from omnibench.locks import holds_out_folder
 from omnibench.procedures import COMMAND_OF, LABELS, PROCEDURES, default_procedure_path
 
@@ -96,10 +97,13 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     robot, _, _ = load_robot_file(robot_file)
     for p, f in files.items():
         load_plan(f, robot, expect=p)
-    if not port:
-        raise UserError("no --port given (sim:// for the simulated robot)")
     runs_dir = out / "runs"
     earlier = _runs_of(runs_dir)
+    if resume and not earlier and not (out / "campaign.json").is_file():
+        raise UserError(f"nothing to resume in {out}: it holds no campaign (no runs, no campaign.json); "
+                        "check --out, or start the campaign without --resume")
+    if not port:
+        raise UserError("no --port given (sim:// for the simulated robot)")
     if earlier and not resume:
         raise UserError(f"{runs_dir} already holds runs of a campaign: continue it with --resume, "
                         "or give another --out")
@@ -180,8 +184,8 @@ def finish_campaign(results: dict[str, Any], out: Path, robot: Robot, t0: float,
     report = write_report(results, out, robot)
     results["report"] = str(report)
     results["report_html"] = str(write_html(report))
-    (out / "campaign.json").write_text(json.dumps(json_ready(results), indent=2, default=str) + "\n",
-                                       encoding="utf-8")
+    write_atomic(out / "campaign.json", json.dumps(json_ready(results), indent=2, default=str) + "\n",
+                 "campaign summary")
     if summary:
         from omnibench.campaign.summary import campaign_summary
 
@@ -331,11 +335,12 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
     if ans.model == "diagnosed":
         added = " and ".join(f"`{s.get('effect')}` ({s.get('title', '')})".replace(" ()", "") for s in ans.added)
         lines.append(f"**Identified**: the declared model plus {added}, which diagnosis added: {n} coefficients, "
-                     "each with its standard error (SE) and 95 % interval (value ± 1.96 SE). "
+                     "each with its standard error (SE) and 95 % interval (the fit's own, as in its table; "
+                     "value ± 1.96 SE for a refitted coefficient). "
                      "*Before* is the declared model's fit, before diagnosis.")
     else:
         lines.append(f"**Identified**: the declared model, {n} coefficients, each with its standard error (SE), "
-                     "95 % interval (value ± 1.96 SE) and identifiability verdict."
+                     "95 % interval (the fit's own, as in the fit table) and identifiability verdict."
                      + (" Diagnosis added nothing: no candidate effect earned its parameters on held-out runs."
                         if ans.heldout else ""))
     lines.append("")
@@ -458,7 +463,7 @@ def make_plots(results: dict[str, Any], out: Path, robot: Robot) -> dict[str, st
 
 def _save(fig: Any, path: Path, plt: Any) -> str:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return str(path)
 
@@ -519,5 +524,4 @@ def write_report(results: dict[str, Any], out: Path, robot: Robot) -> Path:
                     lines += analysis_lines("validate-energy", after, out)
     lines.append("")
     path = out / "report.md"
-    path.write_text("\n".join(lines), encoding="utf-8")
-    return path
+    return write_atomic(path, "\n".join(lines), "report")

@@ -6,6 +6,7 @@ imported only when their command runs, so `omnibench --help` stays fast.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import importlib.util
 import os
@@ -64,6 +65,17 @@ class LazyGroup(click.Group):
         module = importlib.import_module(table[name][0])
         # A module serving several commands (sweep/forward/...) exposes a `commands` dict.
         return module.commands[name] if hasattr(module, "commands") else module.command
+
+    def resolve_command(self, ctx: click.Context, args: list[str]) -> tuple[str | None, click.Command | None, list[str]]:
+        """The command of `args`; a mistyped command name is refused with the closest one."""
+        try:
+            return super().resolve_command(ctx, args)
+        except click.UsageError:
+            name = args[0] if args else ""
+            close = difflib.get_close_matches(name, self.list_commands(ctx), n=1, cutoff=0.6)
+            if close and name.strip():
+                ctx.fail(f"No such command '{name}'. Did you mean '{close[0]}'?")
+            raise
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         table = commands()

@@ -42,6 +42,8 @@ def _free(text: str | None) -> list[str] | None:
               help="Observation tables that enter the fit: sweep, forward, lateral, energy, step_response "
                    "(default: the sweep, forward and lateral runs given; e.g. --procedures step_response "
                    "--free I_w fits the wheel inertia to step responses).")
+@click.option("--force", is_flag=True,
+              help="Overwrite --out even if omnibench did not write it (a hand-edited robot file, any other file).")
 @click.option("--per-wheel/--no-per-wheel", default=True, show_default=True,
               help="Also fit the upside-down sweep of each wheel on its own (a, b, c per wheel).")
 @click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
@@ -50,14 +52,14 @@ def _free(text: str | None) -> list[str] | None:
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None,
                 procedures: str | None, per_wheel: bool, plots: Path | None, as_json: bool,
-                skip_bad: bool = False) -> None:
+                skip_bad: bool = False, force: bool = False) -> None:
     """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
     correlations and an identifiability verdict per parameter; write the model file."""
     from omnibench.campaign.analysis_commands import fit_runs
 
     procs = None if procedures is None else [p.strip() for p in procedures.split(",") if p.strip()]
     done = fit_runs(runs, out=out, robot_file=robot_file, free=_free(free), procedures=procs, per_wheel=per_wheel,
-                    plots=plots, skip_bad=skip_bad, progress=lambda line: click.echo(line, err=True),
+                    plots=plots, skip_bad=skip_bad, force=force, progress=lambda line: click.echo(line, err=True),
                     say=(lambda line: None) if as_json else click.echo)
     if as_json:
         click.echo(done.json_text())

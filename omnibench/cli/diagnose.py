@@ -42,6 +42,8 @@ def _procedures(text: str | None) -> list[str] | None:
 @click.argument("runs", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
 @click.option("--out", "out", type=NonEmptyPath(path_type=Path), default=None,
               help="Write the extended model (refitted coefficients + added effects) to this TOML file.")
+@click.option("--force", is_flag=True,
+              help="Overwrite --out even if omnibench did not write it (a hand-edited robot file, any other file).")
 @click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for PNG plots: residual vs the variable that exposed each effect, before/after.")
 @click.option("--json", "as_json", is_flag=True, help="Print the diagnosis as JSON.")
@@ -58,7 +60,7 @@ def _procedures(text: str | None) -> list[str] | None:
                    "predict that run (with the black boxes beside); report additions that cost a run as trade-offs.")
 def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path | None, as_json: bool,
             candidates: str | None, procedures: str | None, alpha: float, max_effects: int, seed: int,
-            loro: bool) -> None:
+            loro: bool, force: bool = False) -> None:
     """Fit the declared model to RUN..., find residual structure, add the library effect that
     earns its parameters on held-out run steps, repeat; report before/after errors."""
     if not (0.0 < alpha < 0.5) or not math.isfinite(alpha):
@@ -69,7 +71,7 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
 
     done = diagnose_runs(runs, model=model, out=out, plots=plots, candidates=parse_candidates(candidates),
                          procedures=_procedures(procedures), alpha=alpha, max_effects=max_effects, seed=seed,
-                         loro=loro, progress=lambda line: click.echo(line, err=True))
+                         loro=loro, force=force, progress=lambda line: click.echo(line, err=True))
     if as_json:
         click.echo(done.json_text())
         return

@@ -9,7 +9,7 @@ from __future__ import annotations
 import serial
 
 from omnibench import locks
-from omnibench.errors import BoardError
+from omnibench.errors import BoardError, UserError
 
 SIM_HANDLER_PACKAGE = "omnibench.sim"
 
@@ -27,6 +27,8 @@ def open_url(url: str, *, baudrate: int, timeout: float, what: str = "board") ->
     try:
         port = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=1.0)
     except (serial.SerialException, ValueError, OSError) as exc:
+        if getattr(exc, "bad_input", False):  # a simulator URL with a wrong setting: bad input, not a fault
+            raise UserError(str(exc)) from None
         raise BoardError(f"cannot open the {what} port {url}: {exc} (check the name with `omnibench ports` "
                          "and that no other program holds it)") from None
     try:

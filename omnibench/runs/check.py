@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from omnibench.errors import UserError
+from omnibench.files import check_new_output, check_writable_folder
 from omnibench.runs.record import read_info, refuse_duplicate_ids, sample_header
 
 
@@ -87,16 +88,20 @@ def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
     return good
 
 
-def check_output(out: Path, runs: Iterable[Path] = ()) -> None:
-    """Refuse an output file that is a directory or lies in a run directory (never write over
-    a run's files)."""
+def check_output(out: Path, runs: Iterable[Path] = (), *, force: bool | None = None) -> None:
+    """Refuse an output file that is a directory, lies in a run directory (never write over a
+    run's files) or cannot be written; with `force` given (a model file), also one that exists
+    and was not written by the tool, unless `force` is True."""
     out = Path(out)
     if out.is_dir():
         raise UserError(f"--out {out}: is a directory; give a file name")
+    if force is not None:
+        check_new_output(out, "--out", force=force)
     parent = out.resolve().parent
     if (parent / "run.json").is_file() or any(parent == Path(r).resolve() for r in runs):
         raise UserError(f"--out {out}: is inside the run directory {parent}; write elsewhere (a run's files are "
                         "never overwritten)")
+    check_writable_folder(out.parent, "--out")
 
 
 def in_run(path: Path) -> Path | None:
@@ -116,3 +121,4 @@ def check_out_folder(path: Path, option: str = "--out") -> None:
     if run is not None:
         raise UserError(f"{option} {path}: is inside the run directory {run}; write elsewhere (a run's files "
                         "are never overwritten)")
+    check_writable_folder(path, option)

@@ -50,7 +50,9 @@ class Serial(SerialBase):
         try:
             device, world, extra = world_from_url(self.portstr)
         except UserError as exc:
-            raise SerialException(str(exc)) from exc
+            err = SerialException(str(exc))
+            err.bad_input = True  # a wrong URL: the opener says so, exit 2
+            raise err from exc
         self.world = world
         self._wall_anchor: float | None = None
         if device == "ammeter":

@@ -126,6 +126,15 @@ _SENSOR_KEYS = {f.name for f in fields(SensorConfig)}
 _FAULT_KEYS = {f.name for f in fields(FaultConfig)}
 
 
+def _known_settings_hint(name: str) -> str:
+    """'did you mean X?' for a mistyped simulator setting, else the settings it knows."""
+    import difflib
+
+    known = sorted({f.name for f in fields(World)} | _SENSOR_KEYS | _FAULT_KEYS | {"world", "baudrate"})
+    close = difflib.get_close_matches(name, known, n=1)
+    return f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
+
+
 def _sensors(base: SensorConfig, d: Mapping[str, Any], where: str) -> SensorConfig:
     changes: dict[str, Any] = {}
     for k, v in d.items():
@@ -261,7 +270,7 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
         elif k == "baudrate":
             changes["baudrate"] = int(_float(v, f"{where} baudrate"))
         else:
-            raise UserError(f"{where}: unknown setting {k!r} (see docs/simulator.md)")
+            raise UserError(f"{where}: unknown setting {k!r}; {_known_settings_hint(k)} (see docs/simulator.md)")
     return replace(world, **changes)
 
 

@@ -82,17 +82,26 @@ def test_a_disk_too_small_to_start_a_run_leaves_nothing(small_disk, size, names)
 
 
 def test_a_disk_that_fills_while_driving_leaves_a_failed_resumable_run(small_disk) -> None:
-    """300 KiB: the reserve fits, samples.csv fills the disk: the motors stop, the reserve makes
-    room to mark run.json failed, no reserve left, fit refuses the run with one line."""
+    """300 KiB: the reserve fits, then the disk fills while driving (samples.csv or a run.json
+    rewrite, whichever write meets it first): the motors stop, the reserve makes room to mark
+    run.json failed, no reserve left, the run is resumable, every sample line written is whole,
+    and fit refuses the run with one line."""
+    from omnibench.runs.record import check_resumable
+
     disk = small_disk("300k")
     out = disk / "runs"
     code, err = run_cli(["sweep", "--port", SIM, "--procedure", str(PROC), "--out", str(out)], 120)
     assert code == 2, err
     last = err.strip().splitlines()[-1]
     (run_dir,) = out.iterdir()
-    assert last == f"omnibench: error: cannot write {run_dir / 'samples.csv'}: No space left on device", err
+    named = [f for f in ("samples.csv", "run.json", "steps.jsonl", "events.jsonl")
+             if last == f"omnibench: error: cannot write {run_dir / f}: No space left on device"]
+    assert named, err  # the file that met the full disk, whichever it was
     assert "motors stopped" in err and f"--resume {run_dir} once there is space" in err
     assert json.loads((run_dir / "run.json").read_text())["status"] == "failed"
+    check_resumable(run_dir, "upside_down_sweep")  # raises if it could not be resumed
+    lines = (run_dir / "samples.csv").read_text().splitlines()
+    assert len(lines) > 1 and len({line.count(",") for line in lines}) == 1  # header + whole rows only
     _check_left_state(out, err)
 
 

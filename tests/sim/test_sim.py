@@ -73,8 +73,20 @@ def test_bad_sim_url_gives_one_line_error(url: str, match: str) -> None:
     with pytest.raises(UserError, match=match) as exc:
         world_from_url(url)
     assert "\n" not in str(exc.value)
-    with pytest.raises(BoardError, match=match):
+    with pytest.raises(UserError, match=match):  # a wrong URL is bad input, not a board fault
         Board.open(url)
+
+
+@pytest.mark.parametrize("url, hint", [("sim://?foo=1", "known: "), ("sim://?sed=1", "did you mean 'seed'?")])
+def test_a_wrong_sim_setting_is_bad_input_through_the_cli(url: str, hint: str, capsys) -> None:
+    from omnibench.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", "--port", url])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2, err
+    assert repr(url.split("?")[1].split("=")[0]) in err and hint in err
+    assert "omnibench ports" not in err and len(err.strip().splitlines()) == 1
 
 
 def test_bad_world_file(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 from omnibench.analysis.diagnosis import structure
 from omnibench.analysis.diagnosis.core import Diagnosis
 from omnibench.errors import UserError
+from omnibench.files import save_figure
 
 
 def model_toml(diag: Diagnosis) -> str:
@@ -20,7 +21,10 @@ def model_toml(diag: Diagnosis) -> str:
 
     data = diag.extended.to_toml_dict()
     name = data.pop("name", diag.declared.name)
-    head = [f"# {name}, extended by `omnibench diagnose`.",
+    from omnibench import __version__
+    from omnibench.files import MARKER
+
+    head = [f"{MARKER} {__version__} diagnose: {name}, extended by `omnibench diagnose`.",
             "# Added effects (value ± standard error):"]
     for c in diag.selected:
         vals = ", ".join(f"{p.split('.')[-1]} = {c.values[p]:.5g} ± {c.se[p]:.2g}" for p in c.values)
@@ -52,12 +56,9 @@ def fit_table(diag: Diagnosis) -> dict[str, Any]:
 def write_model(diag: Diagnosis, path: str | Path) -> Path:
     """Write the extended model; the file loads back with omnibench.model.load_robot."""
     p = Path(path)
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(model_toml(diag), encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"{p}: cannot write the extended model ({exc.strerror or exc.__class__.__name__})") from None
-    return p
+    from omnibench.files import write_atomic
+
+    return write_atomic(p, model_toml(diag), "extended model")
 
 
 def _variable_values(diag: Diagnosis, variable: str, predicted: np.ndarray) -> np.ndarray:
@@ -127,7 +128,7 @@ def write_plots(diag: Diagnosis, folder: str | Path) -> list[Path]:
         fig.suptitle(f"{name}: exposed by the residual against {f.variable}")
         fig.tight_layout()
         p = out_dir / f"diagnose_{name}.png"
-        fig.savefig(p, dpi=110)
+        save_figure(fig, p, dpi=110)
         plt.close(fig)
         paths.append(p)
     for k, f in enumerate(diag.unexplained[:4]):
@@ -138,7 +139,7 @@ def write_plots(diag: Diagnosis, folder: str | Path) -> list[Path]:
         _panel(ax, x, fin_r[m], f"unexplained: {f.location()[:90]}", f.variable, f"measured - model ({unit})")
         fig.tight_layout()
         p = out_dir / f"diagnose_unexplained_{k + 1}.png"
-        fig.savefig(p, dpi=110)
+        save_figure(fig, p, dpi=110)
         plt.close(fig)
         paths.append(p)
     # held-out error per procedure, before and after
@@ -155,7 +156,7 @@ def write_plots(diag: Diagnosis, folder: str | Path) -> list[Path]:
         ax.legend()
         fig.tight_layout()
         p = out_dir / "diagnose_heldout_error.png"
-        fig.savefig(p, dpi=110)
+        save_figure(fig, p, dpi=110)
         plt.close(fig)
         paths.append(p)
     return paths
