@@ -101,6 +101,7 @@ void core_boot(core_t *c, const core_identity_t *id, uint32_t boot_id, uint32_t 
     c->boot_id = boot_id ? boot_id : 1;
     c->watchdog_us = (uint32_t)PROTO_DEFAULT_WATCHDOG_MS * 1000UL;
     c->last_rx_us = now_us;
+    c->last_stamp_us = now_us;
     stop(c);
     hal_reset_encoders();
     hal_cancel_sample();
@@ -247,6 +248,10 @@ void core_rx(core_t *c, const uint8_t *bytes, uint8_t n, uint32_t now_us) {
 }
 
 void core_poll(core_t *c, uint32_t now_us) {
+    /* an idle board's last stamp follows the clock: half a wrap (35.8 min) behind, `stamp`
+       would take every later time for an earlier one and the watchdog would never see silence */
+    if ((int32_t)(now_us - c->last_stamp_us) > 0)
+        c->last_stamp_us = now_us;
     /* motors first, words after: a fault or the watchdog stops them before anything is sent */
     uint8_t fresh = hal_fault_inputs() & (uint8_t)~c->faults;
     if (fresh)

@@ -132,6 +132,19 @@ def test_watchdog_latches_and_refuses_until_cleared(core) -> None:
     assert core.duties(core.send(105000, "SET_DUTIES", {"duty": [5] * 4}))[-1] == (5, 5, 5, 5)
 
 
+def test_watchdog_after_a_long_idle_without_frames(core) -> None:
+    """A board left idle (telemetry off, nothing sent) for more than half the 32-bit µs wrap
+    still stamps frames with the time and still stops the wheels when the host goes silent."""
+    _boot(core)
+    t = 2_200_000_000  # 36.7 min after boot, no frame in between, the loop polling the core
+    for when in range(0, t + 1, 100_000_000):
+        assert core.frames(core.cmd(f"poll {when}")) == []
+    ack = core.frames(core.send(t, "SET_DUTIES", {"duty": [1000] * 4}))[-1]
+    assert ack["time"] == t
+    out = core.cmd(f"poll {t + 500_000}")
+    assert core.duties(out) == [(0, 0, 0, 0)]
+
+
 def test_telemetry_on_the_configured_schedule_with_applied_duties(core) -> None:
     _boot(core)
     core.cmd("enc 1 -2 3 -4")
