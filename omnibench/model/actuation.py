@@ -32,11 +32,13 @@ def packet_s() -> float:
     return float(t["packet_bytes"]) * float(t["bits_per_byte"]) / float(t["baud"])
 
 
-def applied_duty(u: Any) -> np.ndarray:
+def applied_duty(u: Any, steps: int | None = None, wire_scale: int | None = None) -> np.ndarray:
     """The duty the drivers apply for commanded duties `u` (any shape, clipped to [-1, 1]): the
-    wire's i16 rounding, then the driver's nearest step of 1/127 per direction."""
+    wire's i16 rounding, then the driver's nearest step of 1/steps per direction (defaults: the
+    description's 32767 and 127; a run replays the values it recorded)."""
     d = chain()["driver"]
-    scale, steps = int(d["wire_scale"]), int(d["steps"])
+    scale = int(wire_scale if wire_scale is not None else d["wire_scale"])
+    steps = int(steps if steps is not None else d["steps"])
     wire = np.rint(np.clip(np.asarray(u, dtype=float), -1.0, 1.0) * scale).astype(np.int64)
     value = (np.abs(wire) * steps + scale // 2) // scale
     return np.sign(wire) * value / steps
@@ -50,5 +52,6 @@ def firmware_timing() -> dict[str, Any]:
     return {"sketch": str(t["sketch"]), "command_order": [int(w) for w in t["command_order"]],
             "commands": str(t["commands"]), "packet_s": packet_s(),
             "command_offset_s": float(t["command_offset_s"]),
-            "driver": {"model": str(d["model"]), "steps": int(d["steps"])},
+            "driver": {"model": str(d["model"]), "steps": int(d["steps"]), "wire_scale": int(d["wire_scale"])},
+            "duties": "as commanded; the drivers apply the nearest step (the analysis replays it)",
             "source": "the firmware's actuation description (omnibench/model/actuation.toml)"}

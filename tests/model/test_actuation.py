@@ -45,3 +45,28 @@ def test_firmware_timing_record_has_the_2019_sketches_keys() -> None:
     assert {"sketch", "command_order", "packet_s", "command_offset_s"} <= set(ft) & set(SQUARE_SKETCH)
     assert ft["command_order"] == [1, 2, 3, 4]
     assert not str(ft["source"]).startswith("assumed")  # recorded, not a guess the analysis profiles over
+
+
+def test_a_firmware_run_is_replayed_with_the_applied_duties(tmp_path: Path) -> None:
+    import dataclasses
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from omnibench.analysis.observations import applied_duties
+    ft = actuation.firmware_timing()
+    frame = pd.DataFrame({"step": [1, 2, 3], "u1": [0.3, 0.5, 0.7], "u2": [-0.3, 0.0, float("nan")],
+                          "u3": [0.3] * 3, "u4": [1.0] * 3})
+    @dataclasses.dataclass
+    class FakeRun:
+        info: object
+        samples: pd.DataFrame
+        steps: pd.DataFrame
+
+    got = applied_duties(FakeRun(SimpleNamespace(firmware_timing=ft), frame, frame))  # type: ignore[arg-type]
+    assert got.steps["u1"].tolist() == pytest.approx([38 / 127, 64 / 127, 89 / 127], abs=0)
+    assert got.samples["u2"].iloc[0] == -38 / 127 and got.samples["u2"].iloc[1] == 0.0
+    assert np.isnan(got.samples["u2"].iloc[2])
+    assert frame["u1"].iloc[0] == 0.3  # the run read is not changed in place
+    ideal = FakeRun(SimpleNamespace(firmware_timing=None), frame, frame)
+    assert applied_duties(ideal) is ideal  # type: ignore[arg-type]
