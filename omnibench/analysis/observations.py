@@ -334,7 +334,36 @@ def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str
     return out
 
 
+DUTY_COLUMNS = ("u1", "u2", "u3", "u4")
+
+
+def applied_duties(run: Run) -> Run:
+    """The run with its duties (steps and samples) as the motor drivers applied them, when its
+    firmware_timing names a driver resolution (`driver.steps`, runs through the project's
+    firmware): the commanded duty rounded to the driver's step; otherwise the run unchanged."""
+    from omnibench.model.actuation import applied_duty
+
+    ft = run.info.firmware_timing
+    driver = ft.get("driver") if isinstance(ft, Mapping) else None
+    if not isinstance(driver, Mapping) or not driver.get("steps"):
+        return run
+    kw = {"steps": int(driver["steps"]), "wire_scale": int(driver.get("wire_scale", 32767))}
+
+    def table(df: pd.DataFrame) -> pd.DataFrame:
+        cols = [c for c in DUTY_COLUMNS if c in df]
+        if not len(df) or not cols:
+            return df
+        out = df.copy()
+        for c in cols:
+            v = pd.to_numeric(out[c], errors="coerce").to_numpy(dtype=float)
+            out[c] = np.where(np.isfinite(v), applied_duty(np.nan_to_num(v), **kw), v)
+        return out
+
+    return replace(run, samples=table(run.samples), steps=table(run.steps))
+
+
 def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observations:
+    run = applied_duties(run)
     proc = RUN_PROCEDURES.get(run.procedure)
     if proc is None:
         raise UserError(f"{run.path}: procedure {run.procedure!r} is not one the analysis reads "
