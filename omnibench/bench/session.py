@@ -258,7 +258,8 @@ def run_command(
         return _run_on_board(procedure, plan, robot, robot_text, robot_name, board, port=port, out=out,
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
                              measurement_noise=measurement_noise, who=operator,
-                             without_current=without_current, plot=plot, verbosity=verbosity)
+                             without_current=without_current, plot=plot, verbosity=verbosity,
+                             wiring_file=str(wiring_file) if wired is not None and wiring_file else None)
 
 
 OPERATORS = ("auto", "person", "simulated")
@@ -314,11 +315,13 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
                   measurement_noise: float | None, who: str = "auto",
-                  without_current: bool = False, plot: bool = False, verbosity: int = 0) -> dict[str, Any]:
+                  without_current: bool = False, plot: bool = False, verbosity: int = 0,
+                  wiring_file: str | None = None) -> dict[str, Any]:
     import click
 
     from omnibench.bench.runner import Runner, Terminated, safe_stop, sigterm_as_interrupt
     from omnibench.runs import RunWriter
+    from omnibench.runs.provenance import run_provenance
     from omnibench.runs.record import read_info, read_steps
     from omnibench.runs.store import RunLog
 
@@ -351,7 +354,11 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                 robot=robot.to_toml_dict(), robot_text=robot_text, robot_file=robot_name, board=hello,
                 port=port, counts_per_rev=cpr,
                 extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
-                       "settings": plan.settings, "wiring": _wiring_record(board)},
+                       "settings": plan.settings, "wiring": _wiring_record(board),
+                       "provenance": run_provenance(
+                           robot=robot.to_toml_dict(), robot_file=robot_name, robot_text=robot_text, hello=hello,
+                           port=port, simulated=bool(getattr(board, "is_simulator", port.startswith("sim:"))),
+                           wiring_file=wiring_file)},
                 reserve=RESERVE_BYTES,  # room to mark the run on a full disk, claimed before the robot moves
             )
         except OSError as exc:

@@ -78,7 +78,7 @@ class FitDone:
 def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None, free: list[str] | None = None,
              procedures: list[str] | None = None, per_wheel: bool = True, plots: Path | None = None,
              skip_bad: bool = False, force: bool = False, progress: Lines = to_stderr,
-             say: Lines = _silent) -> FitDone:
+             say: Lines = _silent, allow_mixed: bool = False) -> FitDone:
     """Fit every coefficient the runs measure (weighted least squares through the simulator),
     write the model file `out` and, with `plots`, the figures there.
 
@@ -88,7 +88,7 @@ def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None,
     write it. progress: skipped runs and the like; say: what the
     text output tells before the fit (nothing in JSON)."""
     robot, _ = model_robot(robot_file)
-    good = checked_runs(runs, skip_bad=skip_bad, echo=progress)
+    good = checked_runs(runs, skip_bad=skip_bad, echo=progress, allow_mixed=allow_mixed)
     check_output(out, good, force=force)
     if plots is not None:
         check_out_folder(plots, "--plots")
@@ -141,13 +141,13 @@ class ValidationDone:
 
 
 def validate_runs(runs: Sequence[Path], *, model: Path, plots: Path | None = None, skip_bad: bool = False,
-                  progress: Lines = to_stderr) -> ValidationDone:
+                  progress: Lines = to_stderr, allow_mixed: bool = False) -> ValidationDone:
     """Replay each energy run's duties through the model file `model` and compare predicted with
     measured battery energy (paper IV); with `plots`, the current-trace figure there."""
     if plots is not None:
         check_out_folder(plots, "--plots")
     robot, _ = model_robot(model)
-    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=progress), robot)
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=progress, allow_mixed=allow_mixed), robot)
     val = validate_energy(robot, obs)
     fig = None
     if plots is not None:

@@ -49,17 +49,19 @@ def _free(text: str | None) -> list[str] | None:
 @click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the figures (sweep with fitted curves, residuals).")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
+@click.option("--allow-mixed", is_flag=True, help="Combine runs of different robots, boards or worlds (simulated and real) anyway, with a warning line; the shared coefficients are fitted from all of them.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free: str | None,
                 procedures: str | None, per_wheel: bool, plots: Path | None, as_json: bool,
-                skip_bad: bool = False, force: bool = False) -> None:
+                skip_bad: bool = False, force: bool = False, allow_mixed: bool = False) -> None:
     """Fit every coefficient the RUN directories measure, with standard errors, 95 % intervals,
     correlations and an identifiability verdict per parameter; write the model file."""
     from omnibench.campaign.analysis_commands import fit_runs
 
     procs = None if procedures is None else [p.strip() for p in procedures.split(",") if p.strip()]
     done = fit_runs(runs, out=out, robot_file=robot_file, free=_free(free), procedures=procs, per_wheel=per_wheel,
-                    plots=plots, skip_bad=skip_bad, force=force, progress=lambda line: click.echo(line, err=True),
+                    plots=plots, skip_bad=skip_bad, force=force, allow_mixed=allow_mixed,
+                    progress=lambda line: click.echo(line, err=True),
                     say=(lambda line: None) if as_json else click.echo)
     if as_json:
         click.echo(done.json_text())
@@ -107,14 +109,15 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
 @click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the current-trace figure.")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
+@click.option("--allow-mixed", is_flag=True, help="Combine runs of different robots, boards or worlds (simulated and real) anyway, with a warning line; the shared coefficients are fitted from all of them.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as_json: bool,
-                     skip_bad: bool = False) -> None:
+                     skip_bad: bool = False, allow_mixed: bool = False) -> None:
     """Replay each energy run's duties through the model and compare predicted with measured
     battery energy (paper IV)."""
     from omnibench.campaign.analysis_commands import validate_runs
 
-    done = validate_runs(runs, model=model, plots=plots, skip_bad=skip_bad,
+    done = validate_runs(runs, model=model, plots=plots, skip_bad=skip_bad, allow_mixed=allow_mixed,
                          progress=lambda line: click.echo(line, err=True))
     if as_json:
         click.echo(done.json_text())
@@ -136,13 +139,14 @@ def validate_command(runs: tuple[Path, ...], model: Path, plots: Path | None, as
 @click.option("--plots", "plots", type=NonEmptyPath(path_type=Path), default=None,
               help="Folder for the measured-vs-model figures.")
 @click.option("--skip-bad", is_flag=True, help="Leave out incomplete or corrupt runs (named on stderr) instead of refusing.")
+@click.option("--allow-mixed", is_flag=True, help="Combine runs of different robots, boards or worlds (simulated and real) anyway, with a warning line; the shared coefficients are fitted from all of them.")
 @click.option("--baseline", is_flag=True,
               help="Also leave-one-run-out: refit the model (a, b on the sweep; I_w and its effects on the "
                    "traces) and the per-wheel black boxes (first-order lag + Coulomb offset, with and "
                    "without dead time) on the other runs, and print each run's held-out NRMSE side by side.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, baseline: bool, as_json: bool,
-                    skip_bad: bool = False) -> None:
+                    skip_bad: bool = False, allow_mixed: bool = False) -> None:
     """Replay a logged RUN (any procedure, including imported step responses) through the model:
     NRMSE of wheel speeds, positions and currents where measured."""
     from omnibench.analysis.observations import Observations
@@ -152,7 +156,8 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     if plots is not None:
         check_out_folder(plots, "--plots")
     robot, _ = model_robot(model)
-    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True)),
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True),
+                                            allow_mixed=allow_mixed),
                                  robot)
     loro = _baseline(robot, obs, model) if baseline else None
     preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)

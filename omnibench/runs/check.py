@@ -5,6 +5,7 @@ them by name with --skip-bad), never read the same run twice, and never write ov
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -52,9 +53,10 @@ def run_problem(path: Path) -> str | None:
 
 
 def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
-                 echo: Callable[[str], None] | None = None) -> list[Path]:
+                 echo: Callable[[str], None] | None = None, allow_mixed: bool = False) -> list[Path]:
     """The run directories under `paths`, each once; UserError naming a bad run (or, with
-    `skip_bad`, a line per skipped run and the good ones; UserError if none is left)."""
+    `skip_bad`, a line per skipped run and the good ones; UserError if none is left), or two
+    runs of different robots, boards or worlds (unless `allow_mixed`: then a warning line)."""
     from omnibench.runs import find_runs
 
     dirs: list[Path] = []
@@ -84,7 +86,12 @@ def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
             raise UserError(f"{where}{why} (--skip-bad leaves such runs out)")
     if not good:
         raise UserError("no usable run left after skipping the bad ones")
-    refuse_duplicate_ids([read_info(d) for d in good])
+    infos = [read_info(d) for d in good]
+    refuse_duplicate_ids(infos)
+    from omnibench.runs.provenance import refuse_mixed
+
+    refuse_mixed(((str(i.path), i.raw) for i in infos), allow_mixed=allow_mixed,
+                 warn=echo or (lambda line: print(line, file=sys.stderr)))
     return good
 
 

@@ -118,7 +118,7 @@ RUN_FIELDS: dict[str, Num | Kind] = {
     "tool": STR, "tool_version": STR, "started": STR, "ended": STR, "reason": STR,
     "status": Kind((str,), null=False, choices=STATUSES),
     "robot": DICT, "board": DICT, "boards": LIST, "plan": DICT, "settings": DICT, "link": DICT,
-    "wiring": DICT, "firmware_timing": DICT, "fitted_gains": DICT,
+    "wiring": DICT, "provenance": DICT, "firmware_timing": DICT, "fitted_gains": DICT,
     "counts_per_rev": Num(1e-9, 1e9),
     "steps_planned": Num(0, 1e6, integer=True),
     "steps_complete": Num(0, 1e6, integer=True),

@@ -225,6 +225,10 @@ def _base_extra(file: Path, signs: Sequence[int], kind: str, timing: dict[str, A
         "sign_map": list(signs),
         "supply_voltage": SUPPLY_V,
         "imported": True,
+        "provenance": {"simulated": False, "world": None, "source_file": str(file),
+                       "source_sha256": file_digest(file), "board_id": None, "boot_id": None,
+                       "firmware_version": None, "settings_sha256": None, "robot_file": None,
+                       "robot_file_sha256": None, "wiring_file": None, "wiring_sha256": None},
     }
 
 

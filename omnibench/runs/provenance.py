@@ -1,0 +1,153 @@
+"""Provenance of a run: what produced it (robot, board, world, source), and the check that the
+runs an analysis combines come from one robot on one kind of board in one world.
+
+A run's identity for combining is (robot, simulated, world): the robot's build (encoder counts
+per revolution and geometry; not the friction coefficients a fit changes), whether a simulator or a real board took it,
+and for a simulator the world its port names (the ``sim://`` query: plant, effects, ...). Boot
+ids, board ids of one real board across a resume, source files and sketches of an import do not
+make a different robot. Old run folders without these fields read as unknown, never as a mix.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from omnibench.errors import UserError
+
+__all__ = [
+    "identity",
+    "mixed_runs",
+    "refuse_mixed",
+    "run_provenance",
+    "sha256_file",
+    "sha256_text",
+    "world_of",
+]
+
+
+def sha256_text(text: str) -> str:
+    """SHA-256 (hex) of a text's UTF-8 bytes."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def sha256_file(path: str | Path | None) -> str | None:
+    """SHA-256 (hex) of a file's bytes; None when there is no such file."""
+    if not path:
+        return None
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def world_of(port: str | None) -> str | None:
+    """The simulated world a ``sim://`` port names (its query, '' for the default world); None
+    for a real port."""
+    if not port or not port.startswith("sim:"):
+        return None
+    return urlsplit(port).query
+
+
+def robot_sha256(robot: Mapping[str, Any] | None) -> str | None:
+    """SHA-256 of a robot description (the run's `robot` table, canonical JSON); None without one."""
+    if not robot:
+        return None
+    return sha256_text(json.dumps(robot, sort_keys=True, separators=(",", ":"), default=str))
+
+
+def run_provenance(*, robot: Mapping[str, Any] | None, robot_file: str | None, robot_text: str | None,
+                   hello: Mapping[str, Any] | None, port: str | None, simulated: bool,
+                   wiring_file: str | None) -> dict[str, Any]:
+    """The `provenance` table of a run taken on a board (null where the board does not say)."""
+    hello = hello or {}
+    settings = hello.get("settings")
+    return {
+        "robot_file": robot_file,
+        "robot_file_sha256": sha256_text(robot_text) if robot_text is not None else None,
+        "robot_sha256": robot_sha256(robot),
+        "board_id": hello.get("board_id"),
+        "boot_id": hello.get("boot_id"),
+        "firmware_version": hello.get("firmware_version"),
+        "settings_sha256": robot_sha256(settings) if isinstance(settings, Mapping) else None,
+        "wiring_file": wiring_file,
+        "wiring_sha256": sha256_file(wiring_file),
+        "simulated": simulated,
+        "world": world_of(port) if simulated else None,
+    }
+
+
+def identity(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """What must agree for two runs to be combined (a run.json document): the robot's build
+    (counts per revolution, L, l, r, alpha), simulated or real, the simulated world; a value None is unknown (old runs) and agrees with anything."""
+    raw_prov = doc.get("provenance")
+    prov: Mapping[str, Any] = raw_prov if isinstance(raw_prov, Mapping) else {}
+    port = doc.get("port") if isinstance(doc.get("port"), str) else None
+    if doc.get("imported"):
+        simulated: bool | None = False
+    elif "simulated" in prov:
+        simulated = bool(prov["simulated"])
+    elif port:
+        simulated = port.startswith("sim:")
+    else:
+        simulated = None
+    raw_robot = doc.get("robot")
+    robot: Mapping[str, Any] = raw_robot if isinstance(raw_robot, Mapping) else {}
+    geometry = tuple((k, robot[k]) for k in GEOMETRY if k in robot) or None
+    cpr = doc.get("counts_per_rev", robot.get("counts_per_rev"))
+    return {"counts_per_rev": cpr, "geometry": geometry, "simulated": simulated,
+            "world": (prov.get("world") if "world" in prov else world_of(port)) if simulated else None}
+
+
+#: the robot's build (not its friction coefficients, which a fit or a campaign may change)
+GEOMETRY = ("L", "l", "r", "alpha")
+
+
+def _show(field: str, value: Any) -> str:
+    if field == "simulated":
+        return "simulated" if value else "real"
+    if field == "counts_per_rev":
+        return f"{value:g} counts/rev"
+    if field == "geometry":
+        return ", ".join(f"{k}={v}" for k, v in value)
+    return f"sim://?{value}" if value else "the default world"
+
+
+def mixed_runs(runs: Iterable[tuple[str, Mapping[str, Any]]]) -> tuple[str, str, str, str] | None:
+    """The first pair of runs that differ in identity: (field, run A, run B, what differs); None
+    when they all agree (unknown agrees with anything)."""
+    first: dict[str, tuple[str, Any]] = {}
+    for name, doc in runs:
+        ident = identity(doc)
+        for field in ("simulated", "world", "counts_per_rev", "geometry"):
+            value = ident[field]
+            if value is None or (field == "world" and ident["simulated"] is not True):
+                continue
+            if field not in first:
+                first[field] = (name, value)
+            elif first[field][1] != value:
+                other, was = first[field]
+                label = {"simulated": "simulated vs real", "world": "simulated world",
+                         "counts_per_rev": "robot's encoder resolution",
+                         "geometry": "robot geometry"}[field]
+                return field, other, name, f"{label}: {_show(field, was)} vs {_show(field, value)}"
+    return None
+
+
+def refuse_mixed(runs: Iterable[tuple[str, Mapping[str, Any]]], *, allow_mixed: bool = False,
+                 warn: Any = None) -> None:
+    """UserError naming two runs and the field that differs, unless `allow_mixed` (then one
+    warning line through `warn`)."""
+    found = mixed_runs(runs)
+    if found is None:
+        return
+    _, a, b, what = found
+    if allow_mixed:
+        if warn is not None:
+            warn(f"warning: combining runs of different robots/boards/worlds ({a} and {b} differ in {what}); "
+                 "the fit takes the shared coefficients from all of them (--allow-mixed)")
+        return
+    raise UserError(f"{a} and {b} are not of one robot/board/world ({what}); give --allow-mixed if the mix is meant")

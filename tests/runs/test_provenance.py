@@ -1,0 +1,69 @@
+"""Provenance: runs record what produced them, and analyses refuse runs of different robots,
+boards or worlds (simulated vs real, two simulated worlds) unless --allow-mixed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from omnibench.cli import main
+from omnibench.runs import run_dirs
+from omnibench.runs.provenance import mixed_runs
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "omnibot-tfm"
+
+
+def _omnibench(*args: str, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    with pytest.raises(SystemExit) as exc:
+        main(list(args))
+        raise SystemExit(0)
+    got = capsys.readouterr()
+    return int(exc.value.code or 0), got.out + got.err
+
+
+@pytest.fixture(scope="module")
+def sim_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sim")
+    with pytest.raises(SystemExit) as exc:
+        main(["forward", "--port", "sim://", "--out", str(out), "--json"])
+        raise SystemExit(0)
+    assert exc.value.code == 0
+    return out
+
+
+def test_a_run_on_the_simulator_records_its_provenance(sim_run):
+    prov = json.loads((run_dirs(sim_run)[0] / "run.json").read_text())["provenance"]
+    assert prov["simulated"] is True and prov["world"] == ""
+    assert prov["board_id"] and prov["boot_id"] and prov["firmware_version"]
+    assert len(prov["robot_file_sha256"]) == 64 and prov["wiring_file"] is None
+
+
+def test_fit_refuses_the_2019_logs_with_a_simulated_run(sim_run, tmp_path, capsys):
+    if not (DATA / "results_ground_x.mat").exists():
+        pytest.skip("shared/data/omnibot-tfm is not available")
+    code, text = _omnibench("import", "tfm", str(DATA / "results_ground_x.mat"), "--out", str(tmp_path / "tfm"), capsys=capsys)
+    assert code == 0, text
+    prov = json.loads((run_dirs(tmp_path / "tfm")[0] / "run.json").read_text())["provenance"]
+    assert prov["simulated"] is False and len(prov["source_sha256"]) == 64
+    code, text = _omnibench("fit", str(tmp_path / "tfm"), str(sim_run), "--out", str(tmp_path / "m.toml"), capsys=capsys)
+    assert code == 2, text
+    line = text.strip().splitlines()[-1]
+    assert "simulated vs real" in line and "results_ground_x" in line and "forward_runs" in line
+    assert "--allow-mixed" in line and "Traceback" not in text
+    assert not (tmp_path / "m.toml").exists()
+
+
+def test_two_simulated_worlds_are_a_mix_but_one_world_is_not():
+    sim = {"port": "sim://", "counts_per_rev": 980, "provenance": {"simulated": True, "world": ""}}
+    other = {"port": "sim://?plant=independent", "counts_per_rev": 980,
+             "provenance": {"simulated": True, "world": "plant=independent"}}
+    found = mixed_runs([("a", sim), ("b", other)])
+    assert found is not None and found[0] == "world" and "plant=independent" in found[3]
+    assert mixed_runs([("a", sim), ("b", dict(sim))]) is None
+    old = {"port": None, "counts_per_rev": None}  # an old run folder: unknown agrees with anything
+    assert mixed_runs([("a", sim), ("b", old)]) is None
+    tfm = {"imported": True, "counts_per_rev": 980}
+    assert mixed_runs([("a", tfm), ("b", {"imported": True, "counts_per_rev": 980, "source": "other"})]) is None
+    assert mixed_runs([("a", tfm), ("b", {"imported": True, "counts_per_rev": 2048})])[0] == "counts_per_rev"
