@@ -28,6 +28,7 @@ from omnibench.model import default_robot
 from omnibench.model.robot import Robot
 from omnibench.progress import working
 from omnibench.runs.check import check_out_folder, check_output, checked_runs
+from omnibench.runs.provenance import model_build
 from omnibench.runs.store import json_ready
 
 Lines = Callable[[str], None]
@@ -147,7 +148,8 @@ def validate_runs(runs: Sequence[Path], *, model: Path, plots: Path | None = Non
     if plots is not None:
         check_out_folder(plots, "--plots")
     robot, _ = model_robot(model)
-    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=progress, allow_mixed=allow_mixed), robot)
+    obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=progress, allow_mixed=allow_mixed,
+                                              model=(f"the model {model}", model_build(robot))), robot)
     val = validate_energy(robot, obs)
     fig = None
     if plots is not None:

@@ -23,6 +23,7 @@ from omnibench.campaign.analysis_commands import Lines, to_stderr
 from omnibench.errors import UserError
 from omnibench.model import load_robot
 from omnibench.runs.check import check_out_folder, check_output, checked_runs
+from omnibench.runs.provenance import model_build
 
 
 def _diagnosis_number(x: object) -> object:
@@ -55,7 +56,7 @@ class DiagnosisDone:
 def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None, plots: Path | None = None,
                   candidates: list[str] | None = None, procedures: list[str] | None = None, alpha: float = 1e-3,
                   max_effects: int = 3, seed: int = 0, loro: bool = False, force: bool = False,
-                  progress: Lines = to_stderr) -> DiagnosisDone:
+                  progress: Lines = to_stderr, allow_mixed: bool = False) -> DiagnosisDone:
     """Fit the declared model `model` to the runs, find residual structure, add the library
     effects that earn their parameters on held-out run steps; write the extended model to `out`
     and the before/after plots to `plots` when given (docs/diagnose.md).
@@ -63,13 +64,14 @@ def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None,
     candidates: only these effects (default: the library); procedures: only these observation
     tables; alpha: family-wise significance level; loro: also leave-one-run-out (an addition that
     costs a run is a trade-off, left out of the written model); force: overwrite `out` even if the
-    tool did not write it. progress: lines as it goes."""
-    good = tuple(checked_runs(runs))
+    tool did not write it; allow_mixed: combine runs (and the model) of different robots, boards or
+    worlds, with a warning line. progress: lines as it goes."""
+    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
+    good = tuple(checked_runs(runs, allow_mixed=allow_mixed, model=(f"the model {model}", model_build(robot))))
     if out is not None:
         check_output(out, good, force=force)
     if plots is not None:
         check_out_folder(plots, "--plots")
-    robot = load_robot(model)  # its errors name a robot file: any robot file is a model
     fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
     obs = Observations.from_runs(good, robot=robot)
     if not obs.procedures():

@@ -13,6 +13,7 @@ import click
 from omnibench.cli.params import NonEmptyPath
 from omnibench.errors import UserError
 from omnibench.runs.check import check_out_folder, checked_runs
+from omnibench.runs.provenance import model_build
 
 
 def _echo_json(obj: Any) -> None:
@@ -157,7 +158,8 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
         check_out_folder(plots, "--plots")
     robot, _ = model_robot(model)
     obs = Observations.from_runs(checked_runs(runs, skip_bad=skip_bad, echo=lambda line: click.echo(line, err=True),
-                                            allow_mixed=allow_mixed),
+                                            allow_mixed=allow_mixed,
+                                            model=(f"the model {model}", model_build(robot))),
                                  robot)
     loro = _baseline(robot, obs, model) if baseline else None
     preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)

@@ -58,9 +58,11 @@ def _procedures(text: str | None) -> list[str] | None:
 @click.option("--loro", is_flag=True,
               help="Also leave-one-run-out: refit the declared model and each addition to all runs but one, "
                    "predict that run (with the black boxes beside); report additions that cost a run as trade-offs.")
+@click.option("--allow-mixed", is_flag=True, help="Combine runs (and the model) of different robots, boards or "
+              "worlds (simulated and real) anyway, with a warning line.")
 def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path | None, as_json: bool,
             candidates: str | None, procedures: str | None, alpha: float, max_effects: int, seed: int,
-            loro: bool, force: bool = False) -> None:
+            loro: bool, force: bool = False, allow_mixed: bool = False) -> None:
     """Fit the declared model to RUN..., find residual structure, add the library effect that
     earns its parameters on held-out run steps, repeat; report before/after errors."""
     if not (0.0 < alpha < 0.5) or not math.isfinite(alpha):
@@ -71,7 +73,8 @@ def command(model: Path, runs: tuple[Path, ...], out: Path | None, plots: Path |
 
     done = diagnose_runs(runs, model=model, out=out, plots=plots, candidates=parse_candidates(candidates),
                          procedures=_procedures(procedures), alpha=alpha, max_effects=max_effects, seed=seed,
-                         loro=loro, force=force, progress=lambda line: click.echo(line, err=True))
+                         loro=loro, force=force, allow_mixed=allow_mixed,
+                         progress=lambda line: click.echo(line, err=True))
     if as_json:
         click.echo(done.json_text())
         return

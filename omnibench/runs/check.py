@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 from omnibench.errors import UserError
 from omnibench.files import check_new_output, check_writable_folder
@@ -53,10 +54,13 @@ def run_problem(path: Path) -> str | None:
 
 
 def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
-                 echo: Callable[[str], None] | None = None, allow_mixed: bool = False) -> list[Path]:
+                 echo: Callable[[str], None] | None = None, allow_mixed: bool = False,
+                 model: tuple[str, Mapping[str, Any]] | None = None) -> list[Path]:
     """The run directories under `paths`, each once; UserError naming a bad run (or, with
     `skip_bad`, a line per skipped run and the good ones; UserError if none is left), or two
-    runs of different robots, boards or worlds (unless `allow_mixed`: then a warning line)."""
+    runs of different robots, boards or worlds (unless `allow_mixed`: then a warning line).
+    model: (its name, `provenance.model_build(robot)`) of the model the runs are predicted with,
+    checked against them the same way."""
     from omnibench.runs import find_runs
 
     dirs: list[Path] = []
@@ -90,7 +94,8 @@ def checked_runs(paths: Iterable[str | Path], *, skip_bad: bool = False,
     refuse_duplicate_ids(infos)
     from omnibench.runs.provenance import refuse_mixed
 
-    refuse_mixed(((str(i.path), i.raw) for i in infos), allow_mixed=allow_mixed,
+    named: list[tuple[str, Mapping[str, Any]]] = [(str(i.path), i.raw) for i in infos]
+    refuse_mixed(([model] if model is not None else []) + named, allow_mixed=allow_mixed,
                  warn=echo or (lambda line: print(line, file=sys.stderr)))
     return good
 

@@ -21,6 +21,7 @@ from omnibench.errors import UserError
 __all__ = [
     "identity",
     "mixed_runs",
+    "model_build",
     "refuse_mixed",
     "run_provenance",
     "sha256_file",
@@ -96,14 +97,34 @@ def identity(doc: Mapping[str, Any]) -> dict[str, Any]:
         simulated = None
     raw_robot = doc.get("robot")
     robot: Mapping[str, Any] = raw_robot if isinstance(raw_robot, Mapping) else {}
-    geometry = tuple((k, robot[k]) for k in GEOMETRY if k in robot) or None
-    cpr = doc.get("counts_per_rev", robot.get("counts_per_rev"))
+    raw_geometry = robot.get("geometry")
+    build: Mapping[str, Any] = raw_geometry if isinstance(raw_geometry, Mapping) else robot
+    geometry = tuple((k, _canonical(build[k])) for k in GEOMETRY if k in build) or None
+    encoder = robot.get("encoder")
+    robot_cpr = encoder.get("counts_per_rev") if isinstance(encoder, Mapping) else robot.get("counts_per_rev")
+    cpr = doc.get("counts_per_rev", robot_cpr)
     return {"counts_per_rev": cpr, "geometry": geometry, "simulated": simulated,
             "world": (prov.get("world") if "world" in prov else world_of(port)) if simulated else None}
 
 
 #: the robot's build (not its friction coefficients, which a fit or a campaign may change)
 GEOMETRY = ("L", "l", "r", "alpha")
+
+
+def _canonical(value: Any) -> Any:
+    """A geometry value comparable across JSON and TOML (lists as tuples, numbers as floats)."""
+    if isinstance(value, (list, tuple)):
+        return tuple(_canonical(v) for v in value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def model_build(robot: Any) -> dict[str, Any]:
+    """A model's robot (omnibench.model.Robot) as the part of a run.json document the mixing check
+    reads: its encoder resolution and geometry, so a model of another robot is refused like a run."""
+    return {"counts_per_rev": robot.counts_per_rev,
+            "robot": {"geometry": {k: _canonical(getattr(robot, k)) for k in GEOMETRY}}}
 
 
 def _show(field: str, value: Any) -> str:

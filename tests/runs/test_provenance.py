@@ -67,3 +67,32 @@ def test_two_simulated_worlds_are_a_mix_but_one_world_is_not():
     tfm = {"imported": True, "counts_per_rev": 980}
     assert mixed_runs([("a", tfm), ("b", {"imported": True, "counts_per_rev": 980, "source": "other"})]) is None
     assert mixed_runs([("a", tfm), ("b", {"imported": True, "counts_per_rev": 2048})])[0] == "counts_per_rev"
+
+
+def test_runs_of_another_geometry_are_a_mix():
+    """The run.json `robot` table keeps the geometry in its own section: a wheel radius that
+    differs is another robot."""
+    def run(r: float) -> dict:
+        return {"port": "sim://", "counts_per_rev": 980, "provenance": {"simulated": True, "world": ""},
+                "robot": {"geometry": {"L": 0.2096, "l": 0.2096, "r": r, "alpha": [0.785, -0.785, -0.785, 0.785]}}}
+
+    assert mixed_runs([("a", run(0.0667)), ("b", run(0.0667))]) is None
+    found = mixed_runs([("a", run(0.0667)), ("b", run(0.05))])
+    assert found is not None and found[0] == "geometry" and "r=0.05" in found[3]
+
+
+@pytest.mark.parametrize("command", ["predict", "validate-energy", "diagnose"])
+def test_a_model_of_another_robot_is_refused(sim_run, tmp_path, capsys, command):
+    """A model with 2048 counts per revolution against runs recorded at 980: one line, exit 2,
+    naming the model and the run; the robot's own file is accepted."""
+    shipped = Path(__file__).resolve().parents[2] / "omnibench" / "model" / "omnibot.toml"
+    other = tmp_path / "other.toml"
+    other.write_text(shipped.read_text().replace("counts_per_rev = 980", "counts_per_rev = 2048"))
+    code, text = _omnibench(command, "--model", str(other), str(sim_run), capsys=capsys)
+    assert code == 2, text
+    line = text.strip().splitlines()[-1]
+    assert "the model" in line and "other.toml" in line and "forward_runs" in line, line
+    assert "980" in line and "2048" in line and "Traceback" not in text
+    if command == "predict":
+        code, text = _omnibench(command, "--model", str(shipped), str(sim_run), capsys=capsys)
+        assert code == 0, text
