@@ -13,7 +13,7 @@ import errno
 import json
 import math
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -190,6 +190,9 @@ def run_command(
     wiring: str | Path | None = None,
     plot: bool = False,
     verbosity: int = 0,
+    same_board_as: Sequence[Path] = (),
+    allow_other_board: bool = False,
+    resume_command: str | None = None,
 ) -> dict[str, Any]:
     """Validate, then run (or resume, or dry-run) one procedure. Returns a JSON-able summary.
 
@@ -199,6 +202,9 @@ def run_command(
     operator: "auto" (the simulated operator on a simulator, the answers file, else the person at
     the keyboard), "person" (always the keyboard; on a simulator the world follows the answers)
     or "simulated". without_current: let `energy` drive without any battery current source.
+    same_board_as: runs the new one must share a board with (a campaign's earlier runs; a resumed
+    run is always checked); allow_other_board: go on on another board, recorded in the run.
+    resume_command: the command a user types to continue (a campaign gives its own).
     """
     from omnibench.bench.operator import AnswersOperator
 
@@ -259,7 +265,9 @@ def run_command(
                              resume=resume, answer_op=answer_op, echo=echo, progress=progress,
                              measurement_noise=measurement_noise, who=operator,
                              without_current=without_current, plot=plot, verbosity=verbosity,
-                             wiring_file=str(wiring_file) if wired is not None and wiring_file else None)
+                             wiring_file=str(wiring_file) if wired is not None and wiring_file else None,
+                             same_board_as=same_board_as, allow_other_board=allow_other_board,
+                             resume_command=resume_command)
 
 
 OPERATORS = ("auto", "person", "simulated")
@@ -311,12 +319,41 @@ def _choose_operator(board: Any, plan: Plan, robot: Robot, answer_op: Any, measu
     return ConsoleOperator(robot)
 
 
+def _check_same_board(now: dict[str, Any], hello: dict[str, Any], port: str, runs: Sequence[Path],
+                      allow_other_board: bool, echo: Callable[[str], None]) -> dict[str, Any]:
+    """Refuse to go on with `runs` (the run resumed, a campaign's earlier runs) on a board that is
+    not the one they were taken on, before anything is written; with `allow_other_board`, say so
+    and return what changed, for the new segment. A new boot id alone is recorded, not refused."""
+    from omnibench.runs.provenance import board_changes, latest_provenance
+    from omnibench.runs.record import read_info
+
+    changes: list[str] = []
+    rebooted = False
+    for run in runs:
+        try:
+            before = latest_provenance(read_info(run).raw)
+        except (OSError, ValueError, UserError):
+            continue  # a run that cannot be read is refused by the resume itself, naming the file
+        found = board_changes(before, now)
+        if found and not allow_other_board:
+            raise UserError(f"{port} is not the board {run} was taken on ({'; '.join(found)}): connect that board, "
+                            "or give --allow-other-board to go on here (recorded as a new segment on this board)")
+        if found:
+            echo(f"warning: {run} goes on on another board ({'; '.join(found)}); --allow-other-board: "
+                 "recorded in the run")
+        changes += [c for c in found if c not in changes]
+        was, boot = before.get("boot_id"), hello.get("boot_id")
+        rebooted = rebooted or (was is not None and boot is not None and was != boot)
+    return {"changes": changes, "rebooted": rebooted}
+
+
 def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, robot_name: str, board: Any, *,
                   port: str, out: str | Path, resume: str | Path | None, answer_op: Any,
                   echo: Callable[[str], None], progress: bool,
                   measurement_noise: float | None, who: str = "auto",
                   without_current: bool = False, plot: bool = False, verbosity: int = 0,
-                  wiring_file: str | None = None) -> dict[str, Any]:
+                  wiring_file: str | None = None, same_board_as: Sequence[Path] = (),
+                  allow_other_board: bool = False, resume_command: str | None = None) -> dict[str, Any]:
     import click
 
     from omnibench.bench.runner import Runner, Terminated, safe_stop, sigterm_as_interrupt
@@ -339,9 +376,17 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                             "current sensor and no --ammeter was given: give --ammeter URL, or --without-current "
                             "to drive the trajectories anyway (no energy is measured)")
     operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
+    provenance = run_provenance(
+        robot=robot.to_toml_dict(), robot_file=robot_name, robot_text=robot_text, hello=hello,
+        port=port, simulated=bool(getattr(board, "is_simulator", port.startswith("sim:"))),
+        wiring_file=wiring_file)
+    changes = _check_same_board(provenance, hello, port, ([Path(resume)] if resume is not None else [])
+                                + list(same_board_as), allow_other_board, echo)
     if resume is not None:
         try:
-            writer = RunWriter.resume(Path(resume), board=hello)  # validates every file first
+            writer = RunWriter.resume(Path(resume), board=hello, segment_info={
+                "port": port, "provenance": provenance, "board_changes": changes["changes"],
+                "rebooted": changes["rebooted"]})  # validates every file first
         except OSError as exc:
             raise UserError(f"cannot resume {resume}: {disk_error_line(exc, Path(resume))}") from None
         done = set(steps_done(writer.path))
@@ -355,10 +400,8 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                 port=port, counts_per_rev=cpr,
                 extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
                        "settings": plan.settings, "wiring": _wiring_record(board),
-                       "provenance": run_provenance(
-                           robot=robot.to_toml_dict(), robot_file=robot_name, robot_text=robot_text, hello=hello,
-                           port=port, simulated=bool(getattr(board, "is_simulator", port.startswith("sim:"))),
-                           wiring_file=wiring_file)},
+                       "provenance": provenance,
+                       **({"board_changes": changes["changes"]} if changes["changes"] else {})},
                 reserve=RESERVE_BYTES,  # room to mark the run on a full disk, claimed before the robot moves
             )
         except OSError as exc:
@@ -451,10 +494,13 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
             lock.__exit__(None, None, None)
         if status != "complete":
             resumable = status == "aborted" or disk_full
+            from omnibench.procedures import COMMAND_OF
+
+            again = resume_command or f"omnibench {COMMAND_OF[procedure]} --resume {writer.path} --port {port}"
             click.echo(f"run {status}: {reason}; motors {'stopped' if stopped else 'NOT confirmed stopped'}; "
-                       f"data kept in {writer.path}" + (f"; continue with --resume {writer.path}"
-                                                        + (" once there is space" if disk_full else "")
-                                                        if resumable else ""), err=True)
+                       f"data kept in {writer.path}"
+                       + (f"; continue{' once there is space' if disk_full else ''} with: {again}" if resumable else ""),
+                       err=True)
     return completed_run_summary(procedure, writer.path, echo)
 
 

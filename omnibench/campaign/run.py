@@ -72,7 +72,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                  ammeter: str | None = None, stages: tuple[str, ...] = ANALYSIS,
                  resume: bool = False, without_current: bool = False,
                  operator: str = "auto", analyse: Analyse | None = None, plot: bool = False,
-                 verbosity: int = 0, stage_options: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+                 verbosity: int = 0, stage_options: dict[str, dict[str, Any]] | None = None,
+                 allow_other_board: bool = False) -> dict[str, Any]:
     """Run the four procedures on `port`, then the analysis `stages`; write out/report.md.
 
     resume: continue the campaign already in `out`: a procedure whose run is complete is kept,
@@ -87,7 +88,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     aborted), report.md and campaign.json are written with what finished and where it stopped
     ("status": "interrupted", "stopped_at"), and the KeyboardInterrupt goes on to the caller.
     With `resume`, analysis stages that finished before the interruption are kept when no run
-    changed since."""
+    changed since; every run taken or resumed must be on the board the earlier runs were taken on
+    unless `allow_other_board` (then each run records the change)."""
     from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
     from omnibench.procedures import load_plan
 
@@ -118,6 +120,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
                                "analysis": {}, "status": "running"}
     earlier_analysis = _interrupted_analysis(out) if resume else None
     where = ""
+    again = f"omnibench campaign --resume --port {port} --out {out}" + (f" --robot {robot_file}" if robot_file else "")
+    run_said = False
     try:
         for p, f in files.items():
             (prior, status), = earlier.get(p, [(None, None)])
@@ -128,10 +132,17 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
             earlier_analysis = None  # the runs change: every analysis stage runs again
             where = COMMAND_OF[p]
             echo(f"== {COMMAND_OF[p]}: " + (f"resuming {prior}" if prior else str(f)))
-            res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
-                              progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
-                              resume=prior, without_current=without_current, operator=operator, plot=plot,
-                              verbosity=verbosity)
+            taken = [d for runs in earlier.values() for d, _ in runs if d != prior]
+            taken += [Path(r["run"]) for r in results["procedures"].values() if r.get("run")]
+            try:
+                res = run_command(p, port=port, procedure_file=f, robot_file=robot_file, out=runs_dir, echo=echo,
+                                  progress=progress, ammeter=ammeter if p == "energy_trajectories" else None,
+                                  resume=prior, without_current=without_current, operator=operator, plot=plot,
+                                  verbosity=verbosity, same_board_as=sorted(set(taken)),
+                                  allow_other_board=allow_other_board, resume_command=again)
+            except KeyboardInterrupt:
+                run_said = True  # the run has printed where its data is and how to continue
+                raise
             results["procedures"][p] = res
         where = "analysis"
         if analyse is None:
@@ -148,7 +159,7 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         results.update(status="interrupted", stopped_at=where)
         how = "terminated (SIGTERM)" if isinstance(sys.exc_info()[1], Terminated) else "interrupted (Ctrl-C)"
         echo(f"campaign {how} in {where}: the motors are stopped, the runs and the finished "
-             f"stages are kept in {out}; continue with: omnibench campaign --resume --port {port} --out {out}")
+             f"stages are kept in {out}" + ("" if run_said else f"; continue with: {again}"))
         finish_campaign(results, out, robot, t0, echo, summary=False)
         raise
     results["status"] = "complete"

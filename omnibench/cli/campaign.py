@@ -35,6 +35,8 @@ ANALYSIS_FAILED = 4
               help="diagnose: only these candidate effects (default: the whole library, docs/effects.md).")
 @click.option("--resume", is_flag=True,
               help="Continue the campaign in OUT: keep complete runs, resume an interrupted one, run the rest.")
+@click.option("--allow-other-board", is_flag=True,
+              help="--resume on a board other than the one the earlier runs were taken on (recorded in each run).")
 @click.option("--without-current", is_flag=True,
               help="Run the energy trajectories even with no battery current source (no energy is measured).")
 @click.option("--operator", "who", type=click.Choice(["auto", "person", "simulated"]), default="auto",
@@ -50,7 +52,8 @@ ANALYSIS_FAILED = 4
               metavar="RUN", help="--adaptive: a run of the robot's previous campaign (repeat the option): its "
               "fit's values and noise plan the first round; its data are not counted.")
 def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir: Path | None,
-            ammeter: str | None, analysis: str, candidates: str | None, resume: bool, without_current: bool, who: str,
+            ammeter: str | None, analysis: str, candidates: str | None, resume: bool, allow_other_board: bool,
+            without_current: bool, who: str,
             plot: bool, as_json: bool, adaptive: bool, target_se: str | None, cost: str | None,
             robot_second: float, floor_length: float, no_current: bool, budget_minutes: float | None,
             budget_actions: int | None, prior_runs: tuple[Path, ...]) -> None:
@@ -104,7 +107,7 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
                            progress=not as_json and sys.stderr.isatty(), ammeter=ammeter,
                            stages=stages, resume=resume,
                            without_current=without_current, operator=who, analyse=analyse, plot=plot,
-                           verbosity=level, stage_options=stage_options)
+                           verbosity=level, stage_options=stage_options, allow_other_board=allow_other_board)
     if as_json:
         from omnibench.runs.store import json_ready
 

@@ -37,6 +37,8 @@ def _make(name: str) -> click.Command:
     @click.option("--dry-run", is_flag=True, help="Print the plan, its duration and peak voltage/current; move nothing.")
     @click.option("--resume", type=NonEmptyPath(path_type=Path), metavar="RUN_DIR",
                   help="Continue an interrupted run from its last complete step.")
+    @click.option("--allow-other-board", is_flag=True,
+                  help="--resume on a board other than the one the run was taken on (recorded as a new segment).")
     @click.option("--answers", type=NonEmptyPath(path_type=Path), metavar="FILE",
                   help="Operator answers (TOML) for unattended runs.")
     @click.option("--measurement-noise", type=FINITE, default=None, metavar="M",
@@ -54,7 +56,7 @@ def _make(name: str) -> click.Command:
     @click.option("--ammeter", metavar="URL", default=None, hidden=name != "energy",
                   help="SCPI ammeter on its own serial URL for the battery current (default: the board's sensor).")
     def cmd(port: str | None, procedure_file: Path | None, robot_file: Path | None, out: Path,
-            dry_run: bool, resume: Path | None, answers: Path | None, measurement_noise: float | None,
+            dry_run: bool, resume: Path | None, allow_other_board: bool, answers: Path | None, measurement_noise: float | None,
             who: str, without_current: bool, wiring: Path | None, plot: bool, as_json: bool,
             ammeter: str | None) -> None:
         from omnibench.bench.session import run_command
@@ -71,7 +73,7 @@ def _make(name: str) -> click.Command:
             dry_run=dry_run, resume=resume, answers=answers, echo=echo,
             progress=not as_json and sys.stderr.isatty(), measurement_noise=measurement_noise,
             ammeter=ammeter, operator=who, without_current=without_current, wiring=wiring, plot=plot,
-            verbosity=level,
+            verbosity=level, allow_other_board=allow_other_board,
         )
         if as_json:
             from omnibench.runs.store import json_ready

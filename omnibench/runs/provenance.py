@@ -14,12 +14,14 @@ import json
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import parse_qsl, urlsplit
 
 from omnibench.errors import UserError
 
 __all__ = [
+    "board_changes",
     "identity",
+    "latest_provenance",
     "mixed_runs",
     "model_build",
     "refuse_mixed",
@@ -45,12 +47,35 @@ def sha256_file(path: str | Path | None) -> str | None:
         return None
 
 
+#: The ``sim://`` settings that change the simulated robot's physics (omnibench.sim.world): two
+#: runs whose ports differ in one of these are of different worlds. Everything else a sim URL
+#: may say (seed, clock, speed, dt, board id, firmware version, protocol, baud rate, name, link
+#: faults, sensor noise) changes how the robot is driven or read, not what it is; those are
+#: listed in CONDUCT_SETTINGS, and tests/runs/test_provenance.py checks that every setting of
+#: the simulator is in exactly one of the two.
+PHYSICS_SETTINGS = frozenset({"world", "robot", "mode", "payload", "wheel_mass", "plant", "wiring", "encoder_wiring"})
+PHYSICS_PREFIXES = ("effects.",)
+CONDUCT_SETTINGS = frozenset({"seed", "clock", "speed", "dt", "board_id", "firmware_version", "protocol", "baudrate",
+                              "name", "faults", "sensors"})
+
+
 def world_of(port: str | None) -> str | None:
-    """The simulated world a ``sim://`` port names (its query, '' for the default world); None
-    for a real port."""
+    """The simulated world a ``sim://`` port names: its physics settings, sorted ('' for the
+    default world); None for a real port. ``sim://?seed=8`` and ``sim://?seed=9&drop=0.01`` are
+    one world, ``sim://?payload=2`` another."""
     if not port or not port.startswith("sim:"):
         return None
-    return urlsplit(port).query
+    pairs = parse_qsl(urlsplit(port).query, keep_blank_values=True)
+    kept = {k: v for k, v in pairs if k in PHYSICS_SETTINGS or k.startswith(PHYSICS_PREFIXES)}
+    return "&".join(f"{k}={_number_text(v)}" for k, v in sorted(kept.items()))
+
+
+def _number_text(v: str) -> str:
+    """'2', '2.0' and '2e0' as one text; any other value unchanged."""
+    try:
+        return f"{float(v):g}"
+    except ValueError:
+        return v
 
 
 def robot_sha256(robot: Mapping[str, Any] | None) -> str | None:
@@ -103,8 +128,8 @@ def identity(doc: Mapping[str, Any]) -> dict[str, Any]:
     encoder = robot.get("encoder")
     robot_cpr = encoder.get("counts_per_rev") if isinstance(encoder, Mapping) else robot.get("counts_per_rev")
     cpr = doc.get("counts_per_rev", robot_cpr)
-    return {"counts_per_rev": cpr, "geometry": geometry, "simulated": simulated,
-            "world": (prov.get("world") if "world" in prov else world_of(port)) if simulated else None}
+    world = (world_of(port) if port and port.startswith("sim:") else prov.get("world")) if simulated else None
+    return {"counts_per_rev": cpr, "geometry": geometry, "simulated": simulated, "world": world}
 
 
 #: the robot's build (not its friction coefficients, which a fit or a campaign may change)
@@ -172,3 +197,61 @@ def refuse_mixed(runs: Iterable[tuple[str, Mapping[str, Any]]], *, allow_mixed: 
                  "the fit takes the shared coefficients from all of them (--allow-mixed)")
         return
     raise UserError(f"{a} and {b} are not of one robot/board/world ({what}); give --allow-mixed if the mix is meant")
+
+
+#: What must agree for a run (or a campaign) to go on on the board now connected; a value None
+#: is unknown (a board that does not say, an old run) and agrees with anything except where noted.
+#: The boot id is not among them: opening the port of an Arduino resets it, so a resume on the
+#: same board always sees a new boot id (the segment records the reboot instead).
+BOARD_FIELDS = ("simulated", "world", "board_id", "firmware_version", "settings_sha256", "robot_file_sha256",
+                "wiring_sha256")
+_BOARD_LABEL = {"simulated": "simulated or real", "world": "simulated world", "board_id": "board id",
+                "firmware_version": "firmware version", "settings_sha256": "board settings",
+                "robot_file_sha256": "robot file", "wiring_sha256": "wiring file"}
+
+
+def latest_provenance(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The provenance of the board a run's last segment was taken on (run.json document): the
+    newest segment's own, else the run's; {} for an old run without one."""
+    for seg in reversed(doc.get("segments") or []):
+        if isinstance(seg, Mapping) and isinstance(seg.get("provenance"), Mapping):
+            return dict(seg["provenance"])
+    prov = doc.get("provenance")
+    if isinstance(prov, Mapping):
+        out = dict(prov)
+        if out.get("simulated") and isinstance(doc.get("port"), str) and doc["port"].startswith("sim:"):
+            out["world"] = world_of(doc["port"])
+        return out
+    return {}
+
+
+def board_changes(before: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """What differs between the board a run was taken on and the board connected now, one
+    phrase each ('board id 0B0B0001 -> 0B0B0002'); [] when nothing known differs. A wiring file
+    given on one side and not the other is a change; other unknowns agree."""
+    out: list[str] = []
+    for f in BOARD_FIELDS:
+        if f not in before or f not in now:
+            continue
+        b, n = before[f], now[f]
+        if f == "world" and not (before.get("simulated") and now.get("simulated")):
+            continue
+        if f != "wiring_sha256" and (b is None or n is None):
+            continue
+        if b != n:
+            out.append(f"{_BOARD_LABEL[f]} {_board_value(f, b, before)} -> {_board_value(f, n, now)}")
+    return out
+
+
+def _board_value(field: str, value: Any, prov: Mapping[str, Any]) -> str:
+    if field == "simulated":
+        return "simulated" if value else "real"
+    if field == "world":
+        return f"sim://?{value}" if value else "the default world"
+    if field == "wiring_sha256":
+        return str(prov.get("wiring_file") or "?") if value else "no wiring file"
+    if field.endswith("sha256"):
+        return str(value)[:12]
+    if isinstance(value, (list, tuple)):
+        return ".".join(str(v) for v in value)
+    return str(value)

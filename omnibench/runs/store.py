@@ -277,8 +277,10 @@ class RunWriter:
         return cls(path, meta, segment=0)
 
     @classmethod
-    def resume(cls, path: Path, *, board: Mapping[str, Any] | None = None) -> "RunWriter":
-        """Reopen an interrupted run to append a new segment (status back to ``running``)."""
+    def resume(cls, path: Path, *, board: Mapping[str, Any] | None = None,
+               segment_info: Mapping[str, Any] | None = None) -> "RunWriter":
+        """Reopen an interrupted run to append a new segment (status back to ``running``);
+        `segment_info` (the port, the board's provenance, what changed) is kept in the segment."""
         path = Path(path)
         info, _ = check_resumable(path)  # every file validated before anything is written
         meta = info.raw
@@ -289,7 +291,8 @@ class RunWriter:
         segment = 1 + max((s["segment"] for s in meta.get("segments", [])), default=-1)
         meta.setdefault("segments", []).append(
             {"segment": segment, "started": utc_now(), "ended": None, "status": "running",
-             "previous_status": meta.get("status"), "previous_reason": meta.get("reason")}
+             "previous_status": meta.get("status"), "previous_reason": meta.get("reason"),
+             **dict(segment_info or {})}
         )
         meta["status"] = "running"
         meta["reason"] = None

@@ -111,7 +111,12 @@ def test_interrupted_campaign_resumes_without_redoing_complete_runs_or_mixing_ca
     assert code == 2 and "already holds runs" in err and len(err.strip().splitlines()) == 1
     assert len(list((out / "runs").iterdir())) == 3
 
-    code, err = _campaign(capsys, out, "sim://?seed=8&name=later", "--resume")
+    before = {d: (d / "run.json").read_bytes() for d in (out / "runs").iterdir()}
+    code, err = _campaign(capsys, out, "sim://?seed=8&board_id=195887106", "--resume")  # another board
+    assert code == 2 and "is not the board" in err and "board id 0B0B0001 -> 0BAD0002" in err, err
+    assert {d: (d / "run.json").read_bytes() for d in (out / "runs").iterdir()} == before
+
+    code, err = _campaign(capsys, out, "sim://?seed=8&name=later", "--resume")  # the same board, its name aside
     assert code == 0, err
     report = (out / "report.md").read_text()
     assert "port: `sim://?seed=8&driver_fault_at=10`" in report  # the resumed run keeps its own port

@@ -9,6 +9,8 @@ and classified automatically:
 - handled: exit 0 on an input that is in fact acceptable; only cases listed in ACCEPTABLE (with
   the reason) may be handled, and their outputs must hold no NaN;
 - silent: exit 0 on bad input (or a NaN in what an ACCEPTABLE case wrote);
+- mixed: exit 0 on a case that combines runs (or a model and runs) of different robots, boards
+  or worlds (names starting "mix: ");
 - internal: "internal error", a traceback, or more than one line on stderr;
 - hang: no answer within HANG_S;
 - overwrite: a file that existed changed or vanished, or a refused command left anything new.
@@ -35,7 +37,7 @@ HANG_S = 15
 HERE = Path(__file__).parent
 PROC = HERE / "procedures" / "stall_sweep.toml"
 ROOT = Path(__file__).resolve().parents[2]
-OUTCOMES = ("clear", "handled", "silent", "internal", "hang", "overwrite")
+OUTCOMES = ("clear", "handled", "silent", "mixed", "internal", "hang", "overwrite")
 SIM = "sim://?seed=3"
 TFM = Path("/work/shared/data/omnibot-tfm")  # the real 2019 logs (read-only), for `import tfm`
 
@@ -76,6 +78,7 @@ class Case:
     name: str
     argv: list[str]
     timeout: float = HANG_S
+    group: str = ""  #: "one robot": the cases of one_robot_cases
 
 
 class _Hang(BaseException):
@@ -544,6 +547,70 @@ def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
     add("an unknown command", ["nosuch"])
     add("board with an unknown subcommand", ["board", "nosuch"])
     add("import with an unknown format", ["import", "nosuch", files["binary"]])
+    out += one_robot_cases(root, runs, write)
+    return out
+
+
+#: A case whose name starts so combines runs (or a model and runs) of different robots, boards or
+#: worlds: exit 0 on it is "mixed", not merely silent.
+MIX = "mix: "
+
+
+def one_robot_cases(root: Path, runs: dict[str, Path], write: Callable[[str, str], str]) -> list[Case]:
+    """Runs of one robot only, no silent overwrite, resume only what is there: the mixes (another
+    world, the real 2019 logs with a simulated run, a model of another encoder), a resume on
+    another board, files the tool did not write, a resume of a folder holding no campaign.
+    """
+    out: list[Case] = []
+
+    def add(name: str, argv: list[str]) -> None:
+        out.append(Case(name, argv, HANG_S, "one robot"))
+
+    run, erun = str(runs["sweep"]), str(runs["energy"])
+    model = ROOT / "omnibench" / "model" / "omnibot.toml"
+    other = root / "other"  # the same sweep in another simulated world (2 kg on the robot)
+    if not other.exists():
+        code, err = run_cli(["sweep", "--port", f"{SIM}&payload=2", "--procedure", str(PROC), "--out", str(other)], 120)
+        assert code == 0, err
+    (other_run,) = other.iterdir()
+    m2048 = write("model_2048.toml", model.read_text().replace("counts_per_rev = 980", "counts_per_rev = 2048"))
+    assert "2048" in Path(m2048).read_text()
+    add(f"{MIX}fit runs of two simulated worlds", ["fit", run, str(other_run), "--out", str(root / "m.toml")])
+    add(f"{MIX}predict runs of two simulated worlds", ["predict", run, str(other_run), "--model", str(model)])
+    add(f"{MIX}diagnose runs of two simulated worlds", ["diagnose", run, str(other_run), "--model", str(model),
+                                                       "--procedures", "sweep"])
+    add(f"{MIX}predict with a model of another encoder", ["predict", run, "--model", m2048])
+    add(f"{MIX}validate-energy with a model of another encoder", ["validate-energy", erun, "--model", m2048])
+    add(f"{MIX}diagnose with a model of another encoder", ["diagnose", run, "--model", m2048, "--procedures", "sweep"])
+    if TFM.is_dir():
+        tfm = root / "tfm"
+        if not tfm.exists():
+            code, err = run_cli(["import", "tfm", str(TFM / "square_fast.mat"), "--out", str(tfm)], 120)
+            assert code == 0, err
+        (tfm_run,) = tfm.iterdir()
+        add(f"{MIX}fit the 2019 logs with a simulated run", ["fit", str(tfm_run), erun, "--out", str(root / "m.toml")])
+        add(f"{MIX}validate-energy the 2019 logs with a simulated run",
+            ["validate-energy", str(tfm_run), erun, "--model", str(model)])
+    aborted = root / "aborted" / runs["sweep"].name  # an interrupted run, to resume on another board
+    if not aborted.exists():
+        shutil.copytree(runs["sweep"], aborted)
+        _set_json(aborted, status="aborted", reason="interrupted by the operator (Ctrl-C)")
+    for port, what in [(f"{SIM}&board_id=2", "another board id"), (f"{SIM}&firmware_version=2.0.0", "other firmware"),
+                       (f"{SIM}&payload=2", "another world")]:
+        add(f"{MIX}sweep --resume on {what}", ["sweep", "--resume", str(aborted), "--port", port])
+    hand = write("myrobot.toml", "# my Omnibot, measured by hand\n" + model.read_text())
+    notes = write("notes.txt", "lab notes\n")
+    add("fit --out a hand-written robot file", ["fit", run, "--out", hand])
+    add("fit --out a text file", ["fit", run, "--out", notes])
+    add("diagnose --out a hand-written robot file", ["diagnose", run, "--model", str(model), "--procedures", "sweep",
+                                                     "--out", hand])
+    add("campaign --resume --out a folder without a campaign", ["campaign", "--resume", "--port", SIM, "--out",
+                                                                str(root / "campagin")])
+    add("campaign --resume --out a folder of notes", ["campaign", "--resume", "--port", SIM, "--out",
+                                                      str(Path(notes).parent / "answers")])
+    add("sweep --port an unknown sim:// setting", ["sweep", "--port", "sim://?foo=1", "--procedure", str(PROC),
+                                                   "--out", str(root / "new")])
+    add("campain (a mistyped command)", ["campain"])
     return out
 
 
@@ -555,6 +622,8 @@ def classify(code: int | None, err: str, changed: bool, name: str = "", wrote_na
     if "internal error" in err or "Traceback" in err:
         return "internal"
     if code == 0:
+        if name.startswith(MIX):
+            return "mixed"
         return "handled" if name in ACCEPTABLE and not wrote_nan else "silent"
     lines = [x for x in err.strip().splitlines() if x.strip() and not x.startswith("skipping ")]  # --skip-bad
     return "clear" if len(lines) == 1 and lines[0].startswith("omnibench:") else "internal"
@@ -628,7 +697,7 @@ def run_all(root: Path | None = None, select: Callable[[int, Case], bool] | None
                     shutil.rmtree(root / "runs", ignore_errors=True)
                     runs = make_fixture(root)
                     swap = [(old[k], str(runs[k])) for k in runs]
-                    all_cases[i + 1:] = [Case(c.name, [_swap(a, swap) for a in c.argv], c.timeout)
+                    all_cases[i + 1:] = [Case(c.name, [_swap(a, swap) for a in c.argv], c.timeout, c.group)
                                          for c in all_cases[i + 1:]]
         return counts, worst
     finally:

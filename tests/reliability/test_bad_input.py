@@ -27,3 +27,12 @@ def test_the_classifier_tells_the_outcomes_apart() -> None:
     assert classify(0, "", False, name, wrote_nan=True) == "silent"
     assert classify(None, "", False) == "hang"
     assert classify(2, "omnibench: error: refused\n", True) == "overwrite"
+
+
+def test_runs_of_one_robot_no_overwrite_and_resume_only_what_is_there(tmp_path) -> None:
+    """Every mix (two worlds, the 2019 logs with a simulated run, a model of another encoder, a
+    resume on another board), every file the tool did not write, every resume of a folder holding
+    no campaign: refused in one line, nothing on disk changed."""
+    counts, worst = run_all(tmp_path, select=lambda i, case: case.group == "one robot")
+    assert worst == []
+    assert sum(counts.values()) == counts["clear"] >= 16 and counts["mixed"] == counts["silent"] == counts["overwrite"] == 0

@@ -96,3 +96,28 @@ def test_a_model_of_another_robot_is_refused(sim_run, tmp_path, capsys, command)
     if command == "predict":
         code, text = _omnibench(command, "--model", str(shipped), str(sim_run), capsys=capsys)
         assert code == 0, text
+
+
+def test_every_simulator_setting_is_either_physics_or_conduct():
+    """A setting the simulator learns must be classed: physics makes another world, conduct (seed,
+    clock, link faults, sensor noise, board id) does not."""
+    from dataclasses import fields
+
+    from omnibench.runs.provenance import CONDUCT_SETTINGS, PHYSICS_SETTINGS
+    from omnibench.sim.world import World
+
+    url_names = {"robot" if f.name == "robot_file" else f.name for f in fields(World)} | {"world"}
+    url_names.discard("effects")  # written effects.NAME.PARAM: physics by prefix
+    assert url_names <= PHYSICS_SETTINGS | CONDUCT_SETTINGS
+    assert not PHYSICS_SETTINGS & CONDUCT_SETTINGS
+
+
+def test_one_world_whatever_its_seed_faults_or_order_of_settings():
+    from omnibench.runs.provenance import world_of
+
+    assert world_of("sim://?seed=8") == world_of("sim://?seed=9&drop=0.01&clock=realtime&name=x") == ""
+    assert world_of("sim://?payload=2&seed=1") == world_of("sim://?seed=2&payload=2.0") == "payload=2"
+    assert world_of("sim://?effects.stribeck_friction.v_s=0.1&payload=1") == \
+        world_of("sim://?payload=1&effects.stribeck_friction.v_s=0.1")
+    assert world_of("sim://?payload=1") != world_of("sim://?payload=2")
+    assert world_of("/dev/ttyACM0") is None
