@@ -319,6 +319,37 @@ def _choose_operator(board: Any, plan: Plan, robot: Robot, answer_op: Any, measu
     return ConsoleOperator(robot)
 
 
+def missing_current(plan: Plan, board: Any, port: str, without_current: bool) -> str | None:
+    """Why `plan` cannot run on `board` for want of a battery current (energy needs it: the
+    board's sensor or an ammeter attached), or None."""
+    if plan.procedure != "energy_trajectories" or getattr(board, "has_battery_current", False):
+        return None
+    if plan.settings.get("ammeter_required"):
+        return (f"{plan.path}: [ammeter] required = true, but the board on {port} reports no "
+                "battery current sensor and no --ammeter was given")
+    if not without_current:
+        return (f"energy needs the battery current, but the board on {port} reports no battery "
+                "current sensor and no --ammeter was given: give --ammeter URL, or --without-current "
+                "to drive the trajectories anyway (no energy is measured)")
+    return None
+
+
+def preflight(plans: Sequence[Plan], port: str, *, ammeter: str | None = None, without_current: bool = False,
+              timeout: float | None = None) -> None:
+    """Open the board once and check that it can run every plan (a campaign's procedures)
+    before the first one moves a motor: UserError naming the first that cannot."""
+    from omnibench.bench.link_adapter import open_bench_board
+
+    needs_board = [p for p in plans if p.procedure == "energy_trajectories"]
+    if not needs_board:
+        return
+    with open_bench_board(port, timeout=timeout, ammeter=ammeter) as board:
+        for plan in needs_board:
+            problem = missing_current(plan, board, port, without_current)
+            if problem:
+                raise UserError(f"{problem} (checked before the campaign's first procedure)")
+
+
 def _check_same_board(now: dict[str, Any], hello: dict[str, Any], port: str, runs: Sequence[Path],
                       allow_other_board: bool, echo: Callable[[str], None]) -> dict[str, Any]:
     """Refuse to go on with `runs` (the run resumed, a campaign's earlier runs) on a board that is
@@ -367,14 +398,9 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
 
     hello = dict(getattr(board, "hello", {}) or {})
     cpr = hello.get("counts_per_rev") or robot.counts_per_rev
-    if plan.procedure == "energy_trajectories" and not getattr(board, "has_battery_current", False):
-        if plan.settings.get("ammeter_required"):
-            raise UserError(f"{plan.path}: [ammeter] required = true, but the board on {port} reports no "
-                            "battery current sensor and no --ammeter was given")
-        if not without_current:
-            raise UserError(f"energy needs the battery current, but the board on {port} reports no battery "
-                            "current sensor and no --ammeter was given: give --ammeter URL, or --without-current "
-                            "to drive the trajectories anyway (no energy is measured)")
+    problem = missing_current(plan, board, port, without_current)
+    if problem:
+        raise UserError(problem)
     operator = _choose_operator(board, plan, robot, answer_op, measurement_noise, who)
     provenance = run_provenance(
         robot=robot.to_toml_dict(), robot_file=robot_name, robot_text=robot_text, hello=hello,

@@ -609,16 +609,19 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
                           budget_actions: int | None = None, echo: Callable[[str], None] = print,
                           stages: tuple[str, ...] = ("fit", "validate-energy", "diagnose"),
                           energy: bool = True, analyse: "Analyse | None" = None,
-                          prior_runs: tuple[Path, ...] = ()) -> dict[str, Any]:
+                          prior_runs: tuple[Path, ...] = (), ammeter: str | None = None,
+                          without_current: bool = False) -> dict[str, Any]:
     """`omnibench campaign --adaptive`: the adaptive loop on `port` through the runner, then the
     energy trajectories, the analysis stages and the report (with the design's rounds).
 
     analyse: as for `run_campaign` (the command line passes omnibench.campaign.stages.run_analysis).
     prior_runs: run folders of the robot's previous campaign: their fit's values and noise plan
-    round 1 (their data are not counted in this campaign's SEs)."""
+    round 1 (their data are not counted in this campaign's SEs). ammeter: SCPI ammeter URL for
+    the energy trajectories' battery current (else the board's sensor); without_current: drive
+    them without any (no energy measured)."""
     from omnibench import __version__
     from omnibench.analysis.observations import Observations
-    from omnibench.bench.session import load_robot_file, run_command
+    from omnibench.bench.session import load_robot_file, preflight, run_command
     from omnibench.campaign.run import finish_campaign, make_plots, procedure_files, write_report
     from omnibench.procedures import COMMAND_OF
     from omnibench.runs.store import json_ready
@@ -642,6 +645,11 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
     runs_dir = out / "runs"
     if run_dirs(runs_dir):
         raise UserError(f"{runs_dir} already holds runs; an adaptive campaign starts in an empty folder (give another --out)")
+    if energy:
+        from omnibench.procedures import load_plan
+
+        preflight([load_plan(files["energy_trajectories"], robot, expect="energy_trajectories")], port,
+                  ammeter=ammeter, without_current=without_current)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     log_path = out / "design.jsonl"
@@ -691,7 +699,7 @@ def run_adaptive_campaign(port: str, out: Path, target_text: str, *, robot_file:
             echo("== energy: " + str(files["energy_trajectories"]))
             results["procedures"]["energy_trajectories"] = run_command(
                 "energy_trajectories", port=port, procedure_file=files["energy_trajectories"], robot_file=robot_file,
-                out=runs_dir, echo=echo, progress=False)
+                out=runs_dir, echo=echo, progress=False, ammeter=ammeter, without_current=without_current)
         where = "analysis"
         if analyse is not None:
             analyse(runs_dir, out, robot_file, echo, stages, into=results["analysis"])

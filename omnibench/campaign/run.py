@@ -90,15 +90,14 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
     With `resume`, analysis stages that finished before the interruption are kept when no run
     changed since; every run taken or resumed must be on the board the earlier runs were taken on
     unless `allow_other_board` (then each run records the change)."""
-    from omnibench.bench.session import completed_run_summary, load_robot_file, run_command
+    from omnibench.bench.session import completed_run_summary, load_robot_file, preflight, run_command
     from omnibench.procedures import load_plan
 
     out = Path(out)
     files = procedure_files(procedures_dir)
     # validate everything before the first motor moves
     robot, _, _ = load_robot_file(robot_file)
-    for p, f in files.items():
-        load_plan(f, robot, expect=p)
+    plans = {p: load_plan(f, robot, expect=p) for p, f in files.items()}
     runs_dir = out / "runs"
     earlier = _runs_of(runs_dir)
     if resume and not earlier and not (out / "campaign.json").is_file():
@@ -113,6 +112,8 @@ def run_campaign(port: str, out: Path, *, robot_file: Path | None = None, proced
         if len(earlier.get(p, [])) > 1:
             raise UserError(f"{runs_dir} holds {len(earlier[p])} {p} runs; keep one, so the campaign "
                             "knows which to continue")
+    todo = [plans[p] for p in files if not any(st == "complete" for _, st in earlier.get(p, []))]
+    preflight(todo, port, ammeter=ammeter, without_current=without_current)  # the board can run them all
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     results: dict[str, Any] = {"port": port, "out": str(out), "tool_version": __version__,

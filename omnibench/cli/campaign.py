@@ -97,7 +97,8 @@ def command(port: str | None, out: Path, robot_file: Path | None, procedures_dir
                                     procedures_dir=procedures_dir, costs=costs,
                                     limits=Limits(floor_length=floor_length), current=not no_current,
                                     budget_minutes=budget_minutes, budget_actions=budget_actions, echo=echo,
-                                    stages=stages, analyse=analyse, prior_runs=prior_runs)
+                                    stages=stages, analyse=analyse, prior_runs=prior_runs, ammeter=ammeter,
+                                    without_current=without_current)
     elif prior_runs:
         raise UserError("--prior-runs needs --adaptive")
     elif target_se:

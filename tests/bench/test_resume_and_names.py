@@ -131,3 +131,23 @@ def test_ctrl_c_gives_one_resume_instruction_the_right_command(inside_campaign, 
         expected = f"omnibench sweep --resume {run_dir} --port {port}"
     said = [line for line in err.splitlines() if "continue" in line]
     assert len(said) == 1 and said[0].endswith(f"continue with: {expected}"), err
+
+
+@pytest.mark.parametrize("adaptive", [False, True])
+def test_a_campaign_on_a_board_without_current_sensor_is_refused_before_the_first_procedure(
+        adaptive, tmp_path, capsys, monkeypatch):
+    import omnibench.bench.session as session
+
+    def no_run(*a, **k):
+        raise AssertionError("a procedure ran on a board that cannot measure the energy")
+
+    monkeypatch.setattr(session, "run_command", no_run)
+    out = tmp_path / "c"
+    args = ["campaign", "--port", "sim://?seed=8&battery_current_sensor=false", "--out", str(out),
+            "--procedures", str(SWEEP.parent)] + (["--adaptive", "--target-se", "b=10%"] if adaptive else [])
+    code, _, err = _run(args, capsys)
+    assert code == 2, err
+    line, = err.strip().splitlines()
+    assert "reports no battery current sensor and no --ammeter was given" in line
+    assert "checked before the campaign's first procedure" in line
+    assert not out.exists()
