@@ -66,10 +66,10 @@ def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None,
     costs a run is a trade-off, left out of the written model); force: overwrite `out` even if the
     tool did not write it; allow_mixed: combine runs (and the model) of different robots, boards or
     worlds, with a warning line. progress: lines as it goes."""
+    if out is not None:  # the output first: a file the tool did not write is refused before anything is read
+        check_output(out, runs, force=force)
     robot = load_robot(model)  # its errors name a robot file: any robot file is a model
     good = tuple(checked_runs(runs, allow_mixed=allow_mixed, model=(f"the model {model}", model_build(robot))))
-    if out is not None:
-        check_output(out, good, force=force)
     if plots is not None:
         check_out_folder(plots, "--plots")
     fit_info = load_model(model)[1]  # [fit]: was this model fitted to these very runs?
