@@ -97,7 +97,8 @@ def test_a_disk_that_fills_while_driving_leaves_a_failed_resumable_run(small_dis
     named = [f for f in ("samples.csv", "run.json", "steps.jsonl", "events.jsonl")
              if last == f"omnibench: error: cannot write {run_dir / f}: No space left on device"]
     assert named, err  # the file that met the full disk, whichever it was
-    assert "motors stopped" in err and f"--resume {run_dir} once there is space" in err
+    assert "motors stopped" in err
+    assert f"continue once there is space with: omnibench sweep --resume {run_dir} --port {SIM}" in err
     assert json.loads((run_dir / "run.json").read_text())["status"] == "failed"
     check_resumable(run_dir, "upside_down_sweep")  # raises if it could not be resumed
     lines = (run_dir / "samples.csv").read_text().splitlines()
