@@ -44,7 +44,9 @@ ISR(ADC_vect) {
 static int32_t pin_mv(uint8_t i) {
     uint16_t r;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { r = raw[i]; }
-    return ((int32_t)r * AVCC_MV + 512) / 1024;
+    /* code r means V_in in [r, r + 1) * AVCC / 1024 (the conversion truncates): its centre, so
+       that a reading carries no bias of half a code (37 mA on a 66 mV/A Hall sensor) */
+    return ((2 * (int32_t)r + 1) * AVCC_MV + 1024) / 2048;
 }
 
 int32_t analog_battery_mv(void) { return (pin_mv(0) * BATTERY_DIVIDER_X1000 + 500) / 1000; }

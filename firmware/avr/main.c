@@ -53,7 +53,8 @@ static uint32_t draw_boot_id(void) {
 int main(void) {
     static const core_identity_t id = {
         FIRMWARE_VERSION, BOARD_ID, COUNTS_PER_REV, MAX_TELEMETRY_HZ,
-        (BATTERY_CURRENT_HALL ? CAPABILITIES_BATTERY_CURRENT : 0) | (MOTOR_CURRENT_HALL ? CAPABILITIES_MOTOR_CURRENT : 0),
+        (BATTERY_CURRENT_HALL ? CAPABILITIES_BATTERY_CURRENT : 0) | (MOTOR_CURRENT_HALL ? CAPABILITIES_MOTOR_CURRENT : 0) |
+            CAPABILITIES_PACKET_SERIAL_DRIVERS,
     };
     DDRH |= _BV(PH4);       /* pin 7: drivers' enable, low until the core says otherwise */
     PORTH &= (uint8_t)~_BV(PH4);

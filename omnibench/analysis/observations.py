@@ -313,6 +313,7 @@ def supply_at_rest(samples: pd.DataFrame) -> float:
 def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str, Any]:
     """Where the robot was and how its firmware timed the commands (runs.tfm records both):
     `mode` of a trace-replay run, `command_order` (wheels in send order), `command_offset` (s),
+    `command_delays` (s per wheel, when the firmware's send latency is known),
     and, when the timing is assumed, `timing_sketch` (the sketch assumed) and `timing_alternatives`
     (the other documented timings)."""
     out: dict[str, Any] = {}
@@ -323,6 +324,11 @@ def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str
         if isinstance(order, (list, tuple)) and sorted(order) == [1, 2, 3, 4]:
             out["command_order"] = tuple(int(w) for w in order)
         out["command_offset"] = _num(ft.get("command_offset_s", 0.0))
+        delays = ft.get("wheel_delays_s")  # the firmware's known per-wheel send latency, s
+        if isinstance(delays, (list, tuple)) and len(delays) == 4:
+            d = tuple(_num(x) for x in delays)
+            if all(math.isfinite(x) and x >= 0 for x in d):
+                out["command_delays"] = d
         out["sketch"] = str(ft.get("sketch") or "unknown")  # the firmware that recorded it (issue 36)
         if str(ft.get("source", "")).startswith("assumed") or ft.get("sketch") == "unknown":
             # the run's timing is a guess: the sketch assumed and the other documented timings
@@ -379,6 +385,7 @@ def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observat
             "duty_timing": str(run.info.duty_timing or ("from_sample" if imported else "interval_before"))}
     info.update(_firmware_timing(run.info.mode, run.info.firmware_timing))
     info["V_batt"] = supply_at_rest(run.samples)
+    info["current_lsb"] = current_resolution(run.samples)  # read off the logged values
     obs = Observations(runs={rid: info})
     steps = run.steps
     if not len(steps):
@@ -416,9 +423,40 @@ def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observat
     return obs
 
 
+CURRENT_COLUMNS = ("i1", "i2", "i3", "i4")
+PROTOCOL_CURRENT_LSB = 1e-3  #: A: the finest current the protocol carries
+
+
+def current_resolution(samples: pd.DataFrame) -> float:
+    """The motor currents' resolution, A, read off the run's samples: the median spacing of the
+    distinct values logged (a 10-bit ADC on a 66 mV/A Hall sensor steps 74 mA; the simulated
+    board's 1 mA); the protocol's 1 mA when too few values were logged to tell."""
+    cols = [c for c in CURRENT_COLUMNS if c in samples]
+    if not cols or not len(samples):
+        return PROTOCOL_CURRENT_LSB
+    v = samples[cols].to_numpy(dtype=float).ravel()
+    u = np.unique(np.round(v[np.isfinite(v)], 6))
+    d = np.diff(u)
+    d = d[d > 0.5 * PROTOCOL_CURRENT_LSB]
+    return float(max(np.median(d), PROTOCOL_CURRENT_LSB)) if len(d) >= 8 else PROTOCOL_CURRENT_LSB
+
+
+def mean_se_quantised(x: np.ndarray, lsb: float) -> np.ndarray:
+    """Standard error (per column) of the mean of readings `x` (n, k) quantised to `lsb`: the
+    scatter's std/sqrt(n), plus the rounding error the scatter does not average away, lsb^2/12
+    damped by exp(-2 pi^2 sigma^2 / lsb^2) for a noise sigma before the rounding (a quiet sensor
+    reads one code throughout: its mean is off by up to half a code however long it is held)."""
+    n = x.shape[0]
+    std = x.std(axis=0, ddof=1)
+    sigma2 = np.maximum(std ** 2 - lsb ** 2 / 12.0, 0.0)
+    stuck = lsb ** 2 / 12.0 * np.exp(-2.0 * math.pi ** 2 * sigma2 / lsb ** 2)
+    return np.sqrt(np.maximum(std, PROTOCOL_CURRENT_LSB / math.sqrt(12)) ** 2 / n + stuck)
+
+
 def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
     rows = []
     floor = quantisation_se(cpr)
+    lsb = current_resolution(run.samples)
     v_batt = supply_at_rest(run.samples)  # the run's, the same for every step
     for _, st in run.steps.iterrows():
         k = int(st["step"])
@@ -439,7 +477,7 @@ def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
                 n = int(sel.sum())
                 currents = tr[9:13].T
                 if np.isfinite(currents).all() and n > 1:
-                    i_se = np.maximum(currents.std(axis=0, ddof=1), 1e-3 / math.sqrt(12)) / math.sqrt(n)
+                    i_se = mean_se_quantised(currents, lsb)
         if not np.isfinite(w_se).any():
             # only the record: spread of two-reading speeds -> slope error of a line fit
             for j in range(4):

@@ -26,7 +26,7 @@ predicts it better, and says so (`RunPrediction.firmware`, `firmware_profiled`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -52,6 +52,12 @@ def nrmse(measured: np.ndarray, predicted: np.ndarray) -> float:
 
 
 def _scenario(obs: Observations, proc: str, run: str, step: int) -> Scenario:
+    sc = _scenario_world(obs, proc, run, step)
+    delays = obs.runs.get(run, {}).get("command_delays")
+    return replace(sc, command_delays=tuple(delays)) if delays is not None else sc
+
+
+def _scenario_world(obs: Observations, proc: str, run: str, step: int) -> Scenario:
     order = obs.runs.get(run, {}).get("command_order")
     if proc in ("sweep", "step_response"):
         if proc == "sweep" and len(obs.sweep):

@@ -173,8 +173,10 @@ class Predictor:
         """The run's world: `kw` (mode, payload, wheel masses), the world effects, and the
         firmware's send order when the run records one. Equal worlds are one object, so that
         simulate_batch prepares each (parameter set, world) pair once, not once per step."""
-        sc = Scenario(effects=self.world_effects, command_order=self.obs.runs.get(run, {}).get("command_order"),
-                      **kw)
+        info = self.obs.runs.get(run, {})
+        delays = info.get("command_delays")
+        sc = Scenario(effects=self.world_effects, command_order=info.get("command_order"),
+                      command_delays=tuple(delays) if delays is not None else None, **kw)
         for seen in self._scenarios:
             if seen == sc:
                 return seen

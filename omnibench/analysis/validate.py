@@ -72,7 +72,11 @@ def validate_energy(robot: Robot, obs: Observations) -> EnergyValidation:
                "predicted_exact_J": float("nan")}
         if tr is not None and len(tr) >= 3:
             payload = float(r["payload"]) if math.isfinite(r["payload"]) else 0.0
-            rep = replay(robot, tr, Scenario(mode="ground", payload=payload), duty_timing(obs, r["run"]))
+            info = obs.runs.get(r["run"], {})
+            delays = info.get("command_delays")
+            sc = Scenario(mode="ground", payload=payload, command_order=info.get("command_order"),
+                          command_delays=tuple(delays) if delays is not None else None)
+            rep = replay(robot, tr, sc, duty_timing(obs, r["run"]), float(info.get("command_offset", 0.0) or 0.0))
             traces[key] = rep
             # the model's energy by the same trapezoid over the same samples as the measurement
             t = rep["t"].to_numpy()

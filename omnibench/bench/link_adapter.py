@@ -36,6 +36,9 @@ class LinkBoard:
         self.is_simulator = "SIMULATOR" in caps
         self.has_battery_current = "BATTERY_CURRENT" in caps
         self.has_motor_current = "MOTOR_CURRENT" in caps
+        #: the duties reach the motors through the project's firmware's packet-serial drivers
+        #: (rounded and sent one packet per wheel: omnibench/model/actuation.toml)
+        self.packet_serial_drivers = "PACKET_SERIAL_DRIVERS" in caps
         self._buf: deque[Any] = deque()
         self.ammeter_attached = False
 

@@ -121,7 +121,37 @@ def summarise(procedure: str, records: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def applied_duties(samples: Any, firmware_timing: Any) -> dict[str, Any] | None:
+    """How the drivers applied the run's duties, when its firmware timing names their
+    resolution: {"steps": per direction, "changed": [[commanded, applied], ...] for each distinct
+    commanded duty the drivers cannot represent}; None for a run without one."""
+    driver = firmware_timing.get("driver") if isinstance(firmware_timing, dict) else None
+    if not isinstance(driver, dict) or not driver.get("steps"):
+        return None
+    import numpy as np
+
+    from omnibench.model.actuation import applied_duty
+
+    cols = [c for c in ("u1", "u2", "u3", "u4") if c in getattr(samples, "columns", ())]
+    u = np.unique(np.round(samples[cols].to_numpy(dtype=float), 5)) if cols and len(samples) else np.zeros(0)
+    u = u[np.isfinite(u) & (u != 0)]
+    a = applied_duty(u, steps=int(driver["steps"]), wire_scale=int(driver.get("wire_scale", 32767)))
+    changed = [[float(x), round(float(y), 6)] for x, y in zip(u, a) if abs(x - y) > 1e-5]
+    return {"steps": int(driver["steps"]), "changed": changed}
+
+
 def summary_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
+    out = _procedure_lines(procedure, summary, n)
+    applied = summary.get("applied_duties")
+    if isinstance(applied, dict) and applied.get("changed"):
+        pairs = applied["changed"]
+        shown = ", ".join(f"{c:g} as {a:.4g}" for c, a in pairs[:6]) + (f" and {len(pairs) - 6} more" if len(pairs) > 6 else "")
+        out.append(f"duties as the drivers apply them (nearest of {applied['steps']} steps per direction): {shown} "
+                   "(recorded as commanded; the analysis uses the applied duties)")
+    return out
+
+
+def _procedure_lines(procedure: str, summary: dict[str, Any], n: int) -> list[str]:
     if procedure == "upside_down_sweep":
         bad = summary["not_steady_steps"]
         return [f"steady state reached in {summary['steady_steps']}/{n} steps"
@@ -301,6 +331,17 @@ def _wiring_record(board: Any) -> dict[str, Any] | None:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(w).items()} if w is not None else None
 
 
+def firmware_timing_record(board: Any) -> dict[str, Any] | None:
+    """The run's `firmware_timing`: how the board's firmware rounds and times the duties, when
+    its HELLO says the duties go to the packet-serial drivers (omnibench/model/actuation.py);
+    None when the board does not say (the analysis then applies no firmware timing)."""
+    if not getattr(board, "packet_serial_drivers", False):
+        return None
+    from omnibench.model.actuation import firmware_timing
+
+    return firmware_timing()
+
+
 def _choose_operator(board: Any, plan: Plan, robot: Robot, answer_op: Any, measurement_noise: float | None,
                      who: str = "auto") -> Any:
     from omnibench.bench.operator import ConsoleOperator, SimulatedOperator
@@ -426,7 +467,7 @@ def _run_on_board(procedure: str, plan: Plan, robot: Robot, robot_text: str, rob
                 port=port, counts_per_rev=cpr,
                 extra={"steps_planned": len(plan.steps), "plan": plan_summary(plan, robot),
                        "settings": plan.settings, "wiring": _wiring_record(board),
-                       "provenance": provenance,
+                       "provenance": provenance, "firmware_timing": firmware_timing_record(board),
                        **({"board_changes": changes["changes"]} if changes["changes"] else {})},
                 reserve=RESERVE_BYTES,  # room to mark the run on a full disk, claimed before the robot moves
             )
@@ -537,6 +578,9 @@ def completed_run_summary(procedure: str, path: str | Path, echo: Callable[[str]
     run = read_run(path)
     recs = run.steps.to_dict("records")
     res = summarise(procedure, recs)
+    applied = applied_duties(run.samples, run.info.firmware_timing)
+    if applied is not None:
+        res["applied_duties"] = applied
     for line in summary_lines(procedure, res, len(recs)):
         echo(line)
     echo(f"run complete: {path} ({len(run.steps)} steps, {len(run.samples)} samples)")

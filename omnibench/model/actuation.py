@@ -44,6 +44,20 @@ def applied_duty(u: Any, steps: int | None = None, wire_scale: int | None = None
     return np.sign(wire) * value / steps
 
 
+def wheel_delays(order: Any = None, offset_s: float | None = None, packet: float | None = None) -> list[float]:
+    """When each wheel's new duty acts after the board takes SET_DUTIES, s (FL, FR, RL, RR): the
+    command offset plus one packet time per packet sent before and including the wheel's, in the
+    send order (every wheel changing; a wheel whose duty is unchanged gets no packet)."""
+    t = chain()["timing"]
+    order = [int(w) for w in (order if order is not None else t["command_order"])]
+    off = float(t["command_offset_s"]) if offset_s is None else float(offset_s)
+    p = packet_s() if packet is None else float(packet)
+    out = [0.0] * 4
+    for place, wheel in enumerate(order):
+        out[wheel - 1] = off + (place + 1) * p
+    return out
+
+
 def firmware_timing() -> dict[str, Any]:
     """The run record's `firmware_timing` for runs through this firmware (the keys of the 2019
     sketches' records, runs/tfm.py: sketch, command_order, packet_s, command_offset_s), with the
@@ -51,7 +65,7 @@ def firmware_timing() -> dict[str, Any]:
     t, d = chain()["timing"], chain()["driver"]
     return {"sketch": str(t["sketch"]), "command_order": [int(w) for w in t["command_order"]],
             "commands": str(t["commands"]), "packet_s": packet_s(),
-            "command_offset_s": float(t["command_offset_s"]),
+            "command_offset_s": float(t["command_offset_s"]), "wheel_delays_s": wheel_delays(),
             "driver": {"model": str(d["model"]), "steps": int(d["steps"]), "wire_scale": int(d["wire_scale"])},
             "duties": "as commanded; the drivers apply the nearest step (the analysis replays it)",
             "source": "the firmware's actuation description (omnibench/model/actuation.toml)"}

@@ -22,6 +22,9 @@ class Scenario:
     #: wheels (1..4) in the order the firmware sends their commands (serial_command_latency);
     #: None: FL, FR, RL, RR
     command_order: tuple[int, int, int, int] | None = None
+    #: the known latency of each wheel's command (s, FL FR RL RR) in the firmware that recorded
+    #: the run (its packet time and send order), added to any timing terms; None: none known
+    command_delays: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in ("ground", "upside_down"):
@@ -30,6 +33,8 @@ class Scenario:
             raise ValueError("payload must not be negative")
         if self.wheel_mass is not None and (len(self.wheel_mass) != 4 or min(self.wheel_mass) <= 0):
             raise ValueError("wheel_mass must be 4 positive masses (kg)")
+        if self.command_delays is not None and (len(self.command_delays) != 4 or min(self.command_delays) < 0):
+            raise ValueError("command_delays must be 4 latencies >= 0 (s)")
 
 
 def operator_change(sc: Scenario, mode: str | None = None, payload: float | None = None,

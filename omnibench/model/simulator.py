@@ -209,11 +209,13 @@ def _commands(t_cmd, u_cmd, t0: float, dt: float, n_steps: int) -> tuple[np.ndar
 
 
 def command_delays(robot: Robot, scenario: Scenario) -> np.ndarray:
-    """Latency of each wheel's command (4,), s, from the enabled timing terms
-    (omnibench.model.timing): zero unless the robot or its world carries one."""
+    """Latency of each wheel's command (4,), s: the enabled timing terms (omnibench.model.timing)
+    plus the recording firmware's known latency (`Scenario.command_delays`); zero unless the
+    robot, its world or its firmware carries one."""
     from omnibench.model.timing import wheel_delays
 
-    return wheel_delays(term_parameters(robot, scenario), scenario.command_order)
+    d = wheel_delays(term_parameters(robot, scenario), scenario.command_order)
+    return d + np.asarray(scenario.command_delays, dtype=float) if scenario.command_delays is not None else d
 
 
 def command_lags(robot: Robot, scenario: Scenario) -> np.ndarray:

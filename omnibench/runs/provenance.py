@@ -53,7 +53,8 @@ def sha256_file(path: str | Path | None) -> str | None:
 #: faults, sensor noise) changes how the robot is driven or read, not what it is; those are
 #: listed in CONDUCT_SETTINGS, and tests/runs/test_provenance.py checks that every setting of
 #: the simulator is in exactly one of the two.
-PHYSICS_SETTINGS = frozenset({"world", "robot", "mode", "payload", "wheel_mass", "plant", "wiring", "encoder_wiring"})
+PHYSICS_SETTINGS = frozenset({"world", "robot", "mode", "payload", "wheel_mass", "plant", "wiring", "encoder_wiring",
+                              "actuation"})
 PHYSICS_PREFIXES = ("effects.",)
 CONDUCT_SETTINGS = frozenset({"seed", "clock", "speed", "dt", "board_id", "firmware_version", "protocol", "baudrate",
                               "name", "faults", "sensors"})

@@ -181,13 +181,20 @@ class SimBoard:
         self.clock_us = max(self.clock_us, clock_us)
 
     def _wheel_duties(self) -> np.ndarray:
-        """The duty each wheel gets through the (possibly mis-)wired motor connectors."""
+        """The duty each wheel gets through the (possibly mis-)wired motor connectors: as the
+        firmware's drivers apply it (rounded to their packet-serial step) unless the world's
+        actuation is ideal. The per-wheel send latency is the plant's (World.scenario)."""
+        duties = self.duties
+        if self.world.actuation == "firmware" and duties.any():
+            from omnibench.model.actuation import applied_duty
+
+            duties = applied_duty(duties)
         w = self.world.wiring
         if w == (1, 2, 3, 4):
-            return self.duties
+            return duties
         out = np.zeros(4)
         for k, x in enumerate(w):
-            out[abs(x) - 1] = np.sign(x) * self.duties[k]
+            out[abs(x) - 1] = np.sign(x) * duties[k]
         return out
 
     @staticmethod
@@ -358,6 +365,8 @@ class SimBoard:
 
     def _hello_raw(self) -> dict[str, Any]:
         caps = ["SIMULATOR"]
+        if self.world.actuation == "firmware":
+            caps.append("PACKET_SERIAL_DRIVERS")
         if self.world.sensors.battery_current_sensor:
             caps.append("BATTERY_CURRENT")
         if self.world.sensors.motor_current_sensor:

@@ -19,6 +19,10 @@ from omnibench.errors import UserError
 MODES = ("ground", "upside_down")
 PLANTS = ("model", "independent")
 CLOCKS = ("fast", "realtime")
+#: how the board's duties reach the motors: "firmware" (as the project's firmware does: each duty
+#: rounded to the driver's packet-serial step and sent one packet per wheel, in order,
+#: omnibench/model/actuation.toml) or "ideal" (every duty exact and at once: model-only studies)
+ACTUATIONS = ("firmware", "ideal")
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,9 @@ class World:
     #: board encoder channel k reads wheel |encoder_wiring[k]|, counting backwards when negative
     #: (None: the same as `wiring`, i.e. the encoder travels with its motor's connector)
     encoder_wiring: tuple[int, int, int, int] | None = None
+    #: "firmware": duties rounded and delayed per wheel as the firmware's drivers take them;
+    #: "ideal": exact and instantaneous (ACTUATIONS)
+    actuation: str = "firmware"
 
     def robot(self):  # -> omnibench.model.Robot
         """The Robot this world simulates (default Omnibot or `robot_file`)."""
@@ -90,8 +97,13 @@ class World:
         """The model Scenario for the current operator setup and hidden effects."""
         from omnibench.model import Scenario
 
+        delays = None
+        if self.actuation == "firmware":
+            from omnibench.model.actuation import wheel_delays
+
+            delays = tuple(wheel_delays())
         return Scenario(mode=self.mode, payload=self.payload, wheel_mass=self.wheel_mass,
-                        effects={k: dict(v) for k, v in self.effects.items()})
+                        effects={k: dict(v) for k, v in self.effects.items()}, command_delays=delays)
 
 
 def _float(v: Any, what: str) -> float:
@@ -256,6 +268,10 @@ def _apply(world: World, d: Mapping[str, Any], where: str, base_dir: Path | None
             if v not in PLANTS:
                 raise UserError(f"{where}: plant must be model or independent, not {v!r}")
             changes["plant"] = v
+        elif k == "actuation":
+            if v not in ACTUATIONS:
+                raise UserError(f"{where}: actuation must be firmware or ideal, not {v!r}")
+            changes["actuation"] = v
         elif k in ("protocol", "name"):
             changes[k] = str(v)
         elif k in ("wiring", "encoder_wiring"):

@@ -115,6 +115,8 @@ def _prepare(robot, scenarios: Sequence[Scenario]) -> _World:
             e["da"][b, j] = _p(ef, "per_wheel_friction", f"da_{j + 1}")
             e["dbw"][b, j] = _p(ef, "per_wheel_friction", f"db_{j + 1}")
         lag[b] = _latencies(ef, sc.command_order)
+        if sc.command_delays is not None:  # the firmware's own send latency
+            lag[b] += np.asarray(sc.command_delays, dtype=float)
     M = np.zeros((B, 3, 3))
     M[:, 0, 0] = M[:, 1, 1] = mass
     M[:, 2, 2] = robot.I_z

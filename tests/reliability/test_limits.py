@@ -138,7 +138,13 @@ def test_two_campaign_processes_into_one_folder_the_second_is_refused(tmp_path) 
                              preexec_fn=sigint_as_in_a_terminal)  # it is stopped with SIGINT below
     try:
         deadline = time.monotonic() + 120
-        while not (out / locks.LOCK_FILE).exists() and first.poll() is None and time.monotonic() < deadline:
+        def held() -> bool:  # the PID is written once the lock is taken (the file exists a moment before)
+            try:
+                return (out / locks.LOCK_FILE).read_text().strip() == str(first.pid)
+            except OSError:
+                return False
+
+        while not held() and first.poll() is None and time.monotonic() < deadline:
             time.sleep(0.01)
         assert first.poll() is None, first.stderr.read() if first.stderr else ""
         code, err = run_cli(["campaign", "--port", "sim://?seed=3", "--out", str(out), "--resume"])

@@ -15,6 +15,7 @@ import pytest
 
 from omnibench.link.board import Board
 from omnibench.model import Scenario, default_robot, simulate_batch
+from omnibench.model.actuation import applied_duty
 from omnibench.model.closed_form import upside_down_steady_speed
 from omnibench.model.context import GRAVITY
 from omnibench.worlds import independent
@@ -80,7 +81,10 @@ def test_behind_the_serial_path_a_stuck_and_a_turning_wheel():
     dt = s[-1].t - s[len(s) // 2].t
     assert a1[0] == a0[0]  # stuck: not one encoder count
     speed = (a1[1] - a0[1]) / dt
-    assert speed == pytest.approx(upside_down_steady_speed(robot, 0.4, FN), abs=2 * 2 * math.pi / 980 / dt)
+    # the board applies 0.4 as its drivers take it: the nearest packet-serial step, 51/127
+    assert applied_duty(0.4) == pytest.approx(51 / 127)
+    assert speed == pytest.approx(upside_down_steady_speed(robot, float(applied_duty(0.4)), FN),
+                                  abs=2 * 2 * math.pi / 980 / dt)
 
 
 def test_command_latency_is_a_pure_time_shift_per_wheel():

@@ -24,6 +24,7 @@ import math
 import os
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,11 @@ STARTUP_US = 2_100_000  # run before serving: the firmware's driver start-up (1.
 CYCLES_PER_US = F_CPU // 1_000_000
 MODES = ("ground", "upside_down")
 _NO_STATE = ("PING", "HELLO_REQ", "SIM_GET_TRUTH", "SIM_SET_WORLD")
+
+
+#: rms conversion noise of the ATmega2560's ADC, mV at the pin: half a 4.9 mV code (the datasheet
+#: gives +-2 codes absolute accuracy; a conversion of a steady input scatters over a code or two)
+ADC_NOISE_MV = 2.44
 
 
 class FirmwareBoard:
@@ -69,7 +75,9 @@ class FirmwareBoard:
         seeds = np.random.SeedSequence(world.seed).spawn(2)
         self.rng = np.random.default_rng(seeds[0])
         self.robot = world.robot()
-        self.plant = Plant(self.robot, world.scenario(), world.dt)
+        # the firmware is the actuation chain here (its packets are the duties the plant gets):
+        # the plant takes them exactly and at once
+        self.plant = Plant(self.robot, replace(world, actuation="ideal").scenario(), world.dt)
         self.sensors = Sensors(world.sensors, self.robot.counts_per_rev, np.random.default_rng(seeds[1]))
         self.motor_map = [(wh.driver, wh.channel, wh.sense) for wh in w.wheels]  # the robot's, per wheel
         self.clock_us = 0
@@ -158,15 +166,21 @@ class FirmwareBoard:
         self.chip.set_counters(counts, rates)   # chip i reads wheel i, at the robot's chip-select pin
         w = self.wiring
         v = self.sensors.battery_voltage(float(s.V_batt))
-        self.chip.set_adc_mv(0, v / w.battery_divider * 1000)
+        adc = self._adc_mv
+        adc(0, v / w.battery_divider * 1000)
         gain, zero = w.hall_mv_per_a, w.hall_zero_mv
         if w.battery_current == "hall":
             i = float(s.I_batt) + self.rng.normal(0.0, self.world.sensors.battery_current_noise)
-            self.chip.set_adc_mv(5, zero + gain * i)
+            adc(5, zero + gain * i)
         if w.motor_current == "hall":
             cur = np.asarray(s.motor_current) + self.rng.normal(0.0, self.world.sensors.current_noise, 4)
             for w, (_, _, sign) in enumerate(self.motor_map):  # type: ignore[assignment]  # the sensor sits in the driver's lead
-                self.chip.set_adc_mv(1 + w, zero + gain * sign * cur[w])  # type: ignore[call-overload, operator]  # A1..A4
+                adc(1 + w, zero + gain * sign * cur[w])  # type: ignore[call-overload, operator]  # A1..A4
+
+    def _adc_mv(self, channel: int, mv: float) -> None:
+        """An analog input as the chip converts it: with the ATmega2560's own conversion noise
+        (ADC_NOISE_MV; simavr converts noise-free), which also dithers the 4.9 mV codes."""
+        self.chip.set_adc_mv(channel, mv + self.rng.normal(0.0, ADC_NOISE_MV))
 
     def _trace(self, text: str) -> None:
         """Debug trace of the rig (env OMNIBENCH_FIL_TRACE=file)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import math
 from pathlib import Path
 
 from omnibench.errors import UserError
@@ -38,6 +39,18 @@ def harness_library(elf: Path) -> Path:
     raise UserError(f"the simavr harness (libomnibot_fil.so) is not beside {elf} nor in firmware/build: "
                     f"run make -C firmware fil (BUILD={elf.parent} for this firmware)")
 
+
+
+AVCC_MV = 5000     #: the ADC's reference (AVCC, as the rig powers the chip), mV
+ADC_CODES = 1024   #: the ATmega2560's 10-bit conversion: code = floor(V_in * 1024 / V_ref)
+
+
+def chip_code_mv(code: int) -> int:
+    """The whole millivolts simavr converts to ADC `code` (simavr: floor(mv * 1023 / AVCC))."""
+    mv = -(-code * AVCC_MV // (ADC_CODES - 1))  # ceil
+    while mv > 0 and (mv - 1) * (ADC_CODES - 1) // AVCC_MV >= code:
+        mv -= 1
+    return int(mv)
 
 class Harness:
     """One simulated ATmega2560 running `elf`, with the robot's electronics around it."""
@@ -129,7 +142,12 @@ class Harness:
         self.lib.fil_set_counters(self.h, c, r)
 
     def set_adc_mv(self, channel: int, mv: float) -> None:
-        self.lib.fil_set_adc_mv(self.h, channel, int(min(max(mv, 0), 5000)))
+        """Put `mv` (AVCC 5 V reference) on analog input `channel` so that the conversion reads
+        what the ATmega2560 reads, floor(mv * 1024 / 5000): simavr takes whole millivolts and
+        converts with 1023 (one code low at mid-scale), so the rig hands it the smallest whole
+        millivolt that simavr converts to the chip's code."""
+        code = min(max(math.floor(float(mv) * ADC_CODES / AVCC_MV), 0), ADC_CODES - 1)
+        self.lib.fil_set_adc_mv(self.h, channel, chip_code_mv(code))
 
     def pin_high(self, port: str, bit: int) -> bool:
         """1 if the firmware drives this pin high as an output."""
