@@ -9,6 +9,9 @@ import pytest
 
 from omnibench.analysis.fitting import DETERMINES_SHARE, MISFIT_S2, fit, misfit_groups
 from omnibench.analysis.simcampaign import simulated_observations
+from omnibench.campaign.answer import campaign_answer, inadequacy
+from omnibench.campaign.run import answer_lines
+from omnibench.campaign.summary import campaign_summary
 
 SWEEP_FORWARD = ("a", "b", "c", "k_e", "R_a", "C_r")
 
@@ -44,6 +47,36 @@ def test_an_effect_the_model_lacks_makes_the_verdicts_model_inadequate_naming_th
     clean = fit(robot, simulated_observations(truth, procedures=["sweep", "forward"], seed=11))
     assert all(clean.identifiable[p].status == "identified" for p in SWEEP_FORWARD), clean.identifiable
     assert clean.inadequate() == [] and clean.misses_something() == []
+
+
+def test_the_campaign_answer_says_which_group_by_how_much_and_what_diagnose_did(deadband_fit, tmp_path):
+    fit_json = deadband_fit.to_json()
+    skipped = {"fit": {"status": "ok", "result": fit_json},
+               "diagnose": {"status": "skipped", "why": "not asked for (--analysis)"}}
+    ans = campaign_answer(skipped)
+    first = inadequacy(ans)
+    assert first[0].startswith("MODEL INADEQUATE for these runs") and "C_r" in first[0]
+    chi2 = fit_json["group_s2"]["sweep/current"]
+    assert any(line.startswith(f"sweep/current: chi2/dof {chi2:.0f} ") for line in first), first
+    assert "diagnose did not run" in first[-1] and "omnibench diagnose" in first[-1]
+    # the terminal summary and the report open with it, before the coefficients
+    summary = campaign_summary({"analysis": skipped, "report": "r.md", "report_html": "r.html"})
+    assert summary[2] == first[0] and summary.index(first[0]) < next(k for k, s in enumerate(summary) if s.startswith("  C_r "))
+    report = answer_lines(ans, tmp_path)
+    assert report[2] == f"**{first[0]}**" and any("sweep/current: chi2/dof" in s for s in report[:8])
+    assert "**Identified**" not in "\n".join(report)
+    # diagnose ran and found nothing, with structure it could not place: the first screen says so
+    found_nothing = {**skipped, "diagnose": {"status": "ok", "result": {
+        "selected": [], "before": {}, "after": {},
+        "unexplained": [{"group": "forward/w", "variable": "u", "location": "forward w: u 0.3: mean residual -0.052"}]}}}
+    last = inadequacy(campaign_answer(found_nothing))[-1]
+    assert last.startswith("diagnose found no candidate effect") and "forward w: u 0.3" in last
+
+
+def test_a_clean_campaign_has_no_inadequacy_on_its_first_screen(campaign_fit):
+    ans = campaign_answer({"fit": {"status": "ok", "result": campaign_fit.to_json()}})
+    assert ans.inadequate == [] and inadequacy(ans) == []
+    assert all(c.verdict == "identified" for c in ans.coefficients), [(c.name, c.verdict) for c in ans.coefficients]
 
 
 def test_a_misfit_group_of_few_entries_counts_only_when_significant():
