@@ -42,6 +42,13 @@ reported as such (with the combination), never with a number of their own. A fit
 whose column is nearly collinear with a *fixed* motor constant (the sweep without current:
 a and the back-EMF damping eta k_t k_e / R_a; forward runs: C_r and c b) is reported
 `conditional`: its value holds only if the fixed constant is right.
+
+Verdicts that cannot contradict the data (`Verdict`, `_final_verdicts`): the covariance is split
+into each measurement group's share of each parameter's variance; a parameter a group determines
+(DETERMINES_SHARE of its variance or more) is `model inadequate` while that group's chi^2/dof
+against its stated noise is above MISFIT_S2 and significant (chi^2 tail probability below
+MISFIT_P: `misfit_groups`, the groups `misses_something` and the notes name), and `consistent with zero` while its
+95 % interval includes zero; neither is called identified.
 """
 
 from __future__ import annotations
@@ -137,21 +144,38 @@ def default_free(robot: Robot, obs: Observations, procedures: Sequence[str] | No
 # ----------------------------------------------------------------------------- result
 @dataclass(frozen=True)
 class Verdict:
-    """Identifiability of one parameter: status is 'identified', 'conditional' (identified only
-    given a fixed constant it cannot be separated from), 'at bound' (the fit stopped on a physical
-    bound or at zero: the data push it past what is physical, its SE means nothing) or
-    'not identifiable'."""
+    """Identifiability of one parameter. status, from the worst down:
+
+    - 'not identifiable': the data cannot see it (held at its robot-file value, no SE);
+    - 'at bound': the fit stopped on a physical bound or at zero (the data push it past what is
+      physical; its SE means nothing);
+    - 'model inadequate': estimated, but a measurement group that determines it
+      (DETERMINES_SHARE of its variance or more) has chi^2/dof above MISFIT_S2 against its stated
+      noise, and significantly so (`misfit_groups`): the declared model misses something in these runs, and the value (with its SE,
+      widened by the misfit) is what this model makes of them, not a measurement of the coefficient;
+    - 'consistent with zero': estimated, its 95 % interval includes zero;
+    - 'conditional': identified only given a fixed constant it cannot be separated from;
+    - 'identified'.
+
+    `condition` keeps the 'conditional' reason when a worse status took its place."""
 
     status: str
     reason: str
+    condition: str = ""
 
     @property
     def ok(self) -> bool:
-        """Estimated with a meaningful standard error (not 'not identifiable', not 'at bound')."""
-        return self.status in ("identified", "conditional")
+        """Estimated, with a standard error of its own (not 'not identifiable', not 'at bound'):
+        'model inadequate' and 'consistent with zero' keep their number and SE, but only
+        'identified' is a coefficient the data measured without a caveat."""
+        return self.status in ESTIMATED
 
     def __bool__(self) -> bool:
         return self.ok
+
+
+#: Verdicts of parameters that were estimated with a standard error of their own (`Verdict.ok`).
+ESTIMATED = ("identified", "conditional", "consistent with zero", "model inadequate")
 
 
 @dataclass
@@ -179,6 +203,10 @@ class FitResult:
     group_s2: dict[str, float] = field(default_factory=dict)
     #: degrees of freedom of each group (entries less their leverage): how far its chi^2/dof can be trusted
     group_dof: dict[str, float] = field(default_factory=dict)
+    #: per fitted parameter: each group's share of its variance (the groups that determine it)
+    variance_share: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: groups whose noise was estimated from their own residual (no stated noise: no chi^2 test)
+    unstated_noise: list[str] = field(default_factory=list)
     initial: dict[str, float] = field(default_factory=dict)
     fixed: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
@@ -198,16 +226,38 @@ class FitResult:
         return [p for p in self.free if p not in self.fixed]
 
     def misses_something(self) -> list[str]:
-        """Why the declared model does not fit these data (the fit's own flags, as in its notes):
-        chi^2/dof above MISFIT_S2, overall or in a group of at least REWEIGHT_MIN_DOF degrees of
-        freedom against its stated noise (the overall figure is about 1 once such groups are weighted
-        by their own noise), or a group whose residuals are smooth along speed (z above
-        STRUCTURE_Z). Empty when none."""
-        out = [f"chi2/dof {self.s2:.3g}"] if self.s2 > MISFIT_S2 else []
-        out += [f"{g}: chi2/dof {v:.3g} against its stated noise" for g, v in self.group_s2.items()
-                if v > MISFIT_S2 and self.group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF]
+        """Why the declared model does not fit these data (the fit's own flags, as in its notes and
+        verdicts): the misfit groups (`misfit_groups`: chi^2/dof above MISFIT_S2 against the
+        stated noise, and significant; overall too, though the overall figure is about 1 once
+        large groups are weighted by their own noise), or a group whose residuals are smooth along
+        speed (z above STRUCTURE_Z). Empty when none."""
+        bad = misfit_groups(self.group_s2, self.group_dof, self.unstated_noise, self.s2, self.dof)
+        out = [f"chi2/dof {v:.3g}" if g == ALL_OBSERVATIONS else f"{g}: chi2/dof {v:.3g} against its stated noise"
+               for g, v in bad.items()]
         out += [f"{g}: residual structure {st['z']:.1f} sigma" for g, st in (self.structure or {}).items()
                 if st["z"] > STRUCTURE_Z]
+        return out
+
+    def inadequate(self) -> list[dict[str, Any]]:
+        """The measurement groups that do not fit (`misfit_groups`), worst first: group, chi2_dof
+        (against the stated noise), dof, the parameters it determines (name -> share of its
+        variance, DETERMINES_SHARE or more: their verdict is 'model inadequate'; none when the fit
+        weighted the group down so far by its own noise that it determines nothing) and `text`,
+        that in one line."""
+        out = []
+        for g, v in misfit_groups(self.group_s2, self.group_dof, self.unstated_noise, self.s2, self.dof).items():
+            det = {p: _share_of(self.variance_share.get(p, {}), g) for p in self.fitted}
+            det = {p: sh for p, sh in sorted(det.items(), key=lambda x: -x[1]) if sh >= DETERMINES_SHARE
+                   and self.identifiable[p].status == "model inadequate"}
+            dof = float(self.dof if g == ALL_OBSERVATIONS else self.group_dof.get(g, 0.0))
+            which = ", ".join(f"{p} ({100 * sh:.0f} %{' of its variance' if k == 0 else ''})"
+                              for k, (p, sh) in enumerate(det.items()))
+            what = (f"every coefficient ({', '.join(det)})" if g == ALL_OBSERVATIONS and det else
+                    f"determines {which}" if det else
+                    f"it determines no coefficient (weighted by its own noise, under "
+                    f"{100 * DETERMINES_SHARE:.0f} % of any variance)")
+            out.append({"group": g, "chi2_dof": v, "dof": dof, "determines": det,
+                        "text": f"{g}: chi2/dof {chi2_text(v)} against its stated noise on {dof:.0f} dof; {what}"})
         return out
 
     def summary_rows(self) -> list[dict[str, Any]]:
@@ -221,7 +271,8 @@ class FitResult:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict: parameters (name -> value, se, ci95, identifiable, verdict, reason), the
-        correlation matrix, condition number, rank, chi2, dof, runs used, notes."""
+        correlation matrix, condition number, rank, chi2, dof, each group's chi2/dof and dof, each
+        parameter's variance share by group, the misfit groups (`inadequate`), runs used, notes."""
         def f(x: float) -> float | None:
             return float(x) if x is not None and math.isfinite(x) else None
 
@@ -234,6 +285,9 @@ class FitResult:
             "condition_number": f(self.condition_number), "rank": int(self.rank),
             "n_parameters": len(self.free), "chi2": f(self.chi2), "dof": int(self.dof), "s2": f(self.s2),
             "group_s2": {k: f(v) for k, v in self.group_s2.items()},
+            "group_dof": {k: f(v) for k, v in self.group_dof.items()},
+            "variance_share": {p: {g: f(v) for g, v in sh.items()} for p, sh in self.variance_share.items()},
+            "inadequate": self.inadequate(),
             "runs_used": list(self.runs_used), "procedures": list(self.procedures),
             "confounded": self.confounded, "notes": list(self.notes),
             "structure": {g: {k: (f(v) if isinstance(v, float) else v) for k, v in st.items()}
@@ -359,9 +413,9 @@ def _add_condition(verdicts: dict[str, Verdict], name: str, reason: str) -> None
     """Mark `name` conditional (reasons accumulate; 'not identifiable' stays)."""
     v = verdicts.get(name)
     if v is None or v.status == "identified":
-        verdicts[name] = Verdict("conditional", reason)
+        verdicts[name] = Verdict("conditional", reason, condition=reason)
     elif v.status == "conditional":
-        verdicts[name] = Verdict("conditional", f"{v.reason}; {reason}")
+        verdicts[name] = Verdict("conditional", f"{v.reason}; {reason}", condition=f"{v.reason}; {reason}")
 
 
 def _combination(weights: Mapping[str, float]) -> str:
@@ -456,9 +510,13 @@ def fit(robot: Robot, obs: Observations, free: Sequence[str] | None = None, *,
         ci[p] = (values[p] - cv.tq * se[p], values[p] + cv.tq * se[p])
     verdicts = ident.verdicts
     confounded = _confounded(prob, robot, obs, procs, free, ident.active, xa, J, verdicts)
-    _final_verdicts(robot, prob, ident.active, values, se, ci, verdicts)
+    group_s2 = {g: v * stated_factor.get(g, 1.0) for g, v in cv.group_s2.items()}  # against the stated noise
+    unstated = sorted(str(g) for g in np.unique(groups[used]) if unknown[(groups == g) & used].mean() >= 0.5)
+    shares = {p: {g: float(v[k]) for g, v in cv.share.items()} for k, p in enumerate(ident.active)}
+    misfit = misfit_groups(group_s2, cv.group_dof, unstated, cv.s2, cv.dof)
+    _final_verdicts(robot, prob, ident.active, values, se, ci, verdicts, misfit, shares)
     runs_used = sorted(set(cv.residuals.loc[cv.residuals["used"], "run"]))
-    notes += _misfit_notes(cv, stated_factor)
+    notes += _misfit_notes(cv, misfit)
     active = ident.active
     return FitResult(
         robot=fitted_robot, free=list(free), values=values, se=se, ci95=ci,
@@ -466,7 +524,7 @@ def fit(robot: Robot, obs: Observations, free: Sequence[str] | None = None, *,
         corr=pd.DataFrame(cv.corr, index=active, columns=active),
         condition_number=ident.cond, rank=ident.rank, identifiable=verdicts, residuals=cv.residuals,
         chi2=cv.chi2, dof=cv.dof, runs_used=runs_used, procedures=procs, s2=cv.s2,
-        group_s2={g: v * stated_factor.get(g, 1.0) for g, v in cv.group_s2.items()}, group_dof=cv.group_dof,
+        group_s2=group_s2, group_dof=cv.group_dof, variance_share=shares, unstated_noise=unstated,
         initial={p: param_value(robot, p) for p in free},
         fixed=ident.fixed, notes=notes, confounded=confounded, nfev=prob.nfev, structure=cv.structure,
         digest=fit_digest(pred, used, free),
@@ -671,6 +729,8 @@ class _Covariance:
     group_dof: dict[str, float]
     residuals: pd.DataFrame
     structure: dict[str, dict[str, Any]]
+    #: per group: its share of each active parameter's variance (the diagonal of cov; shares sum to 1)
+    share: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.ndarray, groups: np.ndarray,
@@ -679,7 +739,13 @@ def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.n
     t quantile. Per-group noise scale (Birge ratio of each procedure/signal group, with the
     group's share of the degrees of freedom from the leverages), then the sandwich covariance: a
     group whose stated errors are too small (or whose residual carries structure) widens the
-    intervals of the parameters it informs, not of all."""
+    intervals of the parameters it informs, not of all.
+
+    Each group's share of a parameter's variance: the estimate moves with the data as
+    d theta = A J^T d r (A = (J^T J)^-1), so group g contributes (A J_g^T S_g J_g A)_pp to
+    var(theta_p); the shares sum to 1 and count what a group informs through the parameters it
+    is correlated with (the sweep's currents for the rollers' a_r, through b), which the
+    group's share of the diagonal of J^T J would not."""
     r = prob.weighted(f)
     n_used = int(used.sum())
     dof = max(n_used - n_active, 1)
@@ -709,6 +775,10 @@ def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.n
             group_s2[str(g)] *= st["variance_inflation"]
         s2_row[m] = group_s2[str(g)]
     cov_x = A @ (J.T @ (J * s2_row[:, None])) @ A
+    contrib = (A @ J.T) ** 2 * s2_row[None, :]
+    total = contrib.sum(axis=1)
+    total = np.where(total > 0, total, 1.0)
+    share = {str(g): contrib[:, g_used == g].sum(axis=1) / total for g in np.unique(g_used)}
     cov = cov_x * np.outer(prob.scale, prob.scale)
     se_a = np.sqrt(np.maximum(np.diag(cov), 0))
     # Student's t quantile: scipy.special's stdtrit is what stats.t.ppf evaluates (bit for bit),
@@ -717,7 +787,7 @@ def _covariance(prob: WeightedResiduals, pred: Predictor, f: np.ndarray, J: np.n
     tq = float(special.stdtrit(dof, 0.975))
     d = np.where(se_a > 0, se_a, 1.0)
     corr = cov / np.outer(d, d)
-    return _Covariance(chi2, dof, chi2 / dof, cov, se_a, corr, tq, group_s2, group_dof, residuals, structure)
+    return _Covariance(chi2, dof, chi2 / dof, cov, se_a, corr, tq, group_s2, group_dof, residuals, structure, share)
 
 
 def _confounded(prob: WeightedResiduals, robot: Robot, obs: Observations, procs: Sequence[str], free: Sequence[str],
@@ -752,33 +822,93 @@ def _confounded(prob: WeightedResiduals, robot: Robot, obs: Observations, procs:
     return confounded
 
 
+#: A measurement group carrying at least this share of a parameter's variance determines it: its
+#: misfit makes the parameter's verdict 'model inadequate'.
+DETERMINES_SHARE = 0.2
+#: The pseudo-group of every observation, for a misfit of the whole fit (it determines every parameter).
+ALL_OBSERVATIONS = "all observations"
+
+
+def misfit_groups(group_s2: Mapping[str, float], group_dof: Mapping[str, float], unstated: Sequence[str],
+                  s2: float, dof: float) -> dict[str, float]:
+    """The measurement groups whose residuals exceed their stated noise, with their chi^2/dof
+    (`group_s2`, against the stated noise): above MISFIT_S2, and significantly (the chi^2 tail
+    probability of the group's chi^2 on its `group_dof` below MISFIT_P: any group of 6 dof or more
+    at MISFIT_S2, a two-entry group only far above it). A group in `unstated` had its noise
+    estimated from its own residual: it has no such test. ALL_OBSERVATIONS when the whole fit's
+    chi^2/dof `s2` on `dof` passes the same test. Worst first."""
+    out = {g: float(v) for g, v in group_s2.items()
+           if g not in unstated and _significant_misfit(float(v), float(group_dof.get(g, 0.0)))}
+    if _significant_misfit(float(s2), float(dof)):
+        out[ALL_OBSERVATIONS] = float(s2)
+    return dict(sorted(out.items(), key=lambda x: -x[1]))
+
+
+def _significant_misfit(s2: float, dof: float) -> bool:
+    return (math.isfinite(s2) and s2 > MISFIT_S2 and dof > 0
+            and float(special.chdtrc(dof, s2 * dof)) < MISFIT_P)
+
+
+def chi2_text(v: float) -> str:
+    """A chi^2/dof for people: 3 significant digits, a large one whole (1678, not 1.68e+03)."""
+    return f"{v:.0f}" if abs(v) >= 1000 else f"{v:.3g}"
+
+
+def _share_of(shares: Mapping[str, float], group: str) -> float:
+    return 1.0 if group == ALL_OBSERVATIONS else float(shares.get(group, 0.0))
+
+
 def _final_verdicts(robot: Robot, prob: WeightedResiduals, active: list[str], values: Mapping[str, float],
                     se: Mapping[str, float], ci: Mapping[str, tuple[float, float]],
-                    verdicts: dict[str, Verdict]) -> None:
-    """'at bound' for a fitted value on a physical bound or at zero; 'identified' for the rest."""
+                    verdicts: dict[str, Verdict], misfit: Mapping[str, float],
+                    shares: Mapping[str, Mapping[str, float]]) -> None:
+    """The verdict of each fitted parameter (Verdict, worst first): 'at bound' for a value on a
+    physical bound or at zero; 'model inadequate' where a group in `misfit` (group -> chi^2/dof)
+    carries DETERMINES_SHARE or more of its variance (`shares`: parameter -> group -> share);
+    'consistent with zero' where its 95 % interval includes zero; 'conditional' as `_identify`
+    and `_confounded` found; 'identified' for the rest."""
     for k, p in enumerate(active):
         pinned = _pinned(values[p], param_bounds(robot, p), float(prob.scale[k]))
         if pinned:
             verdicts[p] = Verdict("at bound", f"{pinned}: the data push it past its physical range (check the "
                                               "measurements that inform it); its standard error means nothing")
     for p in active:
-        if p not in verdicts:
-            rel = se[p] / abs(values[p]) if values[p] else math.inf
-            verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}"
-                                  + (" (consistent with zero)" if ci[p][0] <= 0 <= ci[p][1] else ""))
+        if p in verdicts and verdicts[p].status not in ("identified", "conditional"):
+            continue
+        cond = verdicts[p].condition if p in verdicts else ""
+        rel = se[p] / abs(values[p]) if values[p] else math.inf
+        lo, hi = ci[p]
+        zero = lo <= 0 <= hi
+        zero_why = f"its 95 % interval [{lo:.4g}, {hi:.4g}] includes zero (relative standard error {rel:.2g})"
+        bad = sorted(((g, _share_of(shares.get(p, {}), g)) for g in misfit), key=lambda x: -x[1])
+        bad = [(g, sh) for g, sh in bad if sh >= DETERMINES_SHARE]
+        if bad:
+            why = "; ".join(f"{g}: chi2/dof {chi2_text(misfit[g])} against its stated noise"
+                            + ("" if g == ALL_OBSERVATIONS else f" ({100 * sh:.0f} % of its variance)")
+                            for g, sh in bad)
+            verdicts[p] = Verdict("model inadequate",
+                                  f"{why}: the declared model misses something in these runs (see omnibench "
+                                  "diagnose); the value, and its SE widened by the misfit, are this model's "
+                                  "reading of them, not a measurement of the coefficient"
+                                  + (f"; {zero_why}" if zero else "") + (f"; {cond}" if cond else ""),
+                                  condition=cond)
+        elif zero:
+            verdicts[p] = Verdict("consistent with zero", zero_why + ": the data do not tell it from zero"
+                                  + (f"; {cond}" if cond else ""), condition=cond)
+        elif p not in verdicts:
+            verdicts[p] = Verdict("identified", f"relative standard error {rel:.2g}")
 
 
-def _misfit_notes(cv: _Covariance, stated_factor: Mapping[str, float]) -> list[str]:
-    """Notes where the residuals exceed the noise (overall, per large group against its stated
-    noise) or are smooth along speed."""
+def _misfit_notes(cv: _Covariance, misfit: Mapping[str, float]) -> list[str]:
+    """Notes where the residuals exceed the noise (`misfit`: `misfit_groups`, overall and per group
+    against its stated noise) or are smooth along speed."""
     notes: list[str] = []
-    if cv.s2 > MISFIT_S2:
-        notes.append(f"chi2/dof = {cv.s2:.3g}: residuals exceed the measurement noise; the model misses "
-                     "something (see residuals / omnibench diagnose); intervals are widened by s")
-    for g, v in cv.group_s2.items():  # large groups are weighted by their own noise: judge each against its stated one
-        v_stated = v * stated_factor.get(g, 1.0)
-        if v_stated > MISFIT_S2 and cv.group_dof.get(g, 0.0) >= REWEIGHT_MIN_DOF:
-            notes.append(f"{g}: chi2/dof = {v_stated:.3g} against its stated noise: residuals exceed the "
+    if ALL_OBSERVATIONS in misfit:
+        notes.append(f"chi2/dof = {misfit[ALL_OBSERVATIONS]:.3g}: residuals exceed the measurement noise; the model "
+                     "misses something (see residuals / omnibench diagnose); intervals are widened by s")
+    for g, v in misfit.items():
+        if g != ALL_OBSERVATIONS:
+            notes.append(f"{g}: chi2/dof = {v:.3g} against its stated noise: residuals exceed the "
                          "measurement noise; the model misses something, or the noise is under-stated (see "
                          "residuals / omnibench diagnose); intervals are widened by it")
     for g, st in cv.structure.items():
@@ -834,6 +964,9 @@ def refit_needed(robot: Robot, obs: Observations, procedures: Sequence[str], fit
 STRUCTURE_Z = 3.0
 #: chi^2/dof above which the fit says the residuals exceed the measurement noise (the model misses something).
 MISFIT_S2 = 4.0
+#: ... when its chi^2 is also this improbable for noise as stated (chi^2 tail probability): a group of a
+#: few entries needs more than MISFIT_S2 (a chi^2_1 draw exceeds 4 one time in 22).
+MISFIT_P = 1e-3
 
 
 def residual_structure(residuals: pd.DataFrame) -> dict[str, dict[str, Any]]:

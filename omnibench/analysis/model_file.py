@@ -16,7 +16,8 @@ A model file is a robot TOML (omnibench/model/omnibot.toml layout, SI numbers, f
     se = 2.9e-05
     ci95 = [0.01989, 0.02001]
     unit = "N m s/rad"
-    verdict = "identified"        # identified | conditional | at bound | not identifiable
+    verdict = "identified"        # identified | conditional | consistent with zero | model inadequate
+                                  # | at bound | not identifiable (fitting.Verdict)
     reason = "..."
 
 Effect parameters are written with their dotted name quoted ([fit.parameters."stribeck_friction.b_s"]).

@@ -108,6 +108,11 @@ class Answer:
     fit_error: dict[str, float] = field(default_factory=dict)  #: the declared fit's NRMSE by procedure
     unexplained: list[dict[str, Any]] = field(default_factory=list)
     model_file: str | None = None
+    #: the declared fit's measurement groups whose misfit makes verdicts 'model inadequate'
+    #: (FitResult.inadequate: group, chi2_dof, dof, determines, text), worst first
+    inadequate: list[dict[str, Any]] = field(default_factory=list)
+    diagnose: str = "not run"  #: the diagnose stage's status (ok, failed, skipped, not run)
+    diagnose_why: str = ""  #: why it was skipped or failed
 
 
 def campaign_answer(stages: dict[str, Any]) -> Answer:
@@ -123,7 +128,11 @@ def campaign_answer(stages: dict[str, Any]) -> Answer:
     ans = Answer(model="diagnosed" if selected and ext else ("declared" if params else "none"),
                  added=selected, unexplained=list(diag.get("unexplained") or []),
                  energy_before=ve.get("mean_abs_error_pct"), energy_after=ve_after.get("mean_abs_error_pct"),
-                 fit_error=dict(fit.get("error_by_procedure") or {}))
+                 fit_error=dict(fit.get("error_by_procedure") or {}),
+                 inadequate=list(fit.get("inadequate") or []),
+                 diagnose=str(diag_stage.get("status") or "not run"),
+                 diagnose_why=str(diag_stage.get("why") or (str(diag_stage.get("stderr") or "").strip().splitlines()
+                                                             or [""])[-1]))
     for proc, b in (diag.get("before") or {}).items():
         a = (diag.get("after") or {}).get(proc) or {}
         ans.heldout[proc] = ((b or {}).get("nrmse"), a.get("nrmse"))
@@ -148,6 +157,44 @@ def campaign_answer(stages: dict[str, Any]) -> Answer:
         ans.model_file = (stages.get("fit") or {}).get("model")
         ans.coefficients = [_declared(name, p) for name, p in params.items()]
     return ans
+
+
+def inadequacy(ans: Answer) -> list[str]:
+    """What is wrong when the declared model does not fit the runs (empty when it does): a
+    headline, one line per misfit group (by how much, which coefficients it determines), and
+    what diagnose found or did not find: the headline first, then the items. Plain text: the
+    terminal summary and the report's first screen both say it."""
+    if not ans.inadequate:
+        return []
+    names = list(dict.fromkeys(p for g in ans.inadequate for p in (g.get("determines") or {})))
+    listed = ", ".join(names)
+    if ans.model == "diagnosed":
+        lines = ["The declared model is INADEQUATE for these runs: "
+                 + (f"its fit of {listed} is verdict 'model inadequate' (a misfit group determines each):" if names
+                    else "groups misfit, though none determines a coefficient of its fit:")]
+    else:
+        lines = ["MODEL INADEQUATE for these runs: the declared model misses something, "
+                 + (f"so {listed} {'is' if len(names) == 1 else 'are'} not identified (verdict 'model inadequate': "
+                    "a misfit group determines each; the values are this model's reading of the runs):" if names
+                    else "though no misfit group determines a coefficient:")]
+    lines += [str(g.get("text") or g.get("group")) for g in ans.inadequate]
+    if ans.model == "diagnosed":
+        added = ", ".join(str(s.get("effect")) for s in ans.added)
+        lines.append(f"diagnose found {added} and added it: the model below is the diagnosed one "
+                     "(the declared fit's verdicts: Analysis, fit)")
+    elif ans.diagnose == "ok":
+        if ans.unexplained:
+            lines.append("diagnose found no candidate effect that explains it; the structure it left unexplained: "
+                         + "; ".join(str(u.get("location") or f"{u.get('group')} against {u.get('variable')}")
+                                     for u in ans.unexplained[:3]))
+        else:
+            lines.append("diagnose found no candidate effect that explains it, and no structure it could place")
+    elif ans.diagnose == "failed":
+        lines.append(f"diagnose failed ({ans.diagnose_why or 'see Analysis'}): nothing is known of the missing effect")
+    else:
+        lines.append(f"diagnose did not run ({ans.diagnose_why or ans.diagnose}); `omnibench diagnose --model "
+                     f"{ans.model_file or 'MODEL'} RUNS` looks for the missing effect")
+    return lines
 
 
 def _declared(name: str, p: dict[str, Any], verdict_note: str = "") -> Coefficient:

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from omnibench import __version__
-from omnibench.campaign.answer import Answer, campaign_answer, rounded_like, unit_words, with_se
+from omnibench.campaign.answer import Answer, campaign_answer, inadequacy, rounded_like, unit_words, with_se
 from omnibench.errors import Terminated, UserError
 from omnibench.files import save_figure, write_atomic
 from omnibench.locks import holds_out_folder
@@ -343,6 +343,9 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
     lines = ["## The answer", ""]
     if not ans.coefficients:
         return lines + ["Nothing was identified: the fit did not run or failed (see Analysis below).", ""]
+    wrong = inadequacy(ans)
+    if wrong:  # the first thing the report says: these numbers are this model's reading of runs it does not fit
+        lines += [f"**{wrong[0]}**", ""] + [f"- {w}" for w in wrong[1:]] + [""]
     n = len(ans.coefficients)
     if ans.model == "diagnosed":
         added = " and ".join(f"`{s.get('effect')}` ({s.get('title', '')})".replace(" ()", "") for s in ans.added)
@@ -351,7 +354,8 @@ def answer_lines(ans: Answer, out: Path) -> list[str]:
                      "value ± 1.96 SE for a refitted coefficient). "
                      "*Before* is the declared model's fit, before diagnosis.")
     else:
-        lines.append(f"**Identified**: the declared model, {n} coefficients, each with its standard error (SE), "
+        head = "**Fitted** (not identified: the model does not fit these runs, above)" if wrong else "**Identified**"
+        lines.append(f"{head}: the declared model, {n} coefficients, each with its standard error (SE), "
                      "95 % interval (the fit's own, as in the fit table) and identifiability verdict."
                      + (" Diagnosis added nothing: no candidate effect earned its parameters on held-out runs."
                         if ans.heldout else ""))

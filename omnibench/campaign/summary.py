@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from omnibench.campaign.answer import campaign_answer
+from omnibench.campaign.answer import campaign_answer, inadequacy
 
 
 def _pct(v: Any) -> str:
@@ -20,6 +20,9 @@ def campaign_summary(results: dict[str, Any]) -> list[str]:
     lines = ["", "== summary"]
     stages = results.get("analysis") or {}
     ans = campaign_answer(stages)
+    wrong = inadequacy(ans)
+    if wrong:  # before the numbers: they are this model's reading of runs it does not fit
+        lines += [wrong[0]] + [f"  {w}" for w in wrong[1:]]
     if ans.coefficients:
         if ans.model == "diagnosed":
             added = ", ".join(str(s.get("effect")) for s in ans.added)

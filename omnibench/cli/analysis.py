@@ -85,9 +85,9 @@ def fit_command(runs: tuple[Path, ...], robot_file: Path | None, out: Path, free
             for p in r.free:
                 v = r.identifiable[p]
                 if v.ok and math.isfinite(r.se[p]):
-                    vals.append(f"{p} = {r.values[p]:.4g} +/- {r.se[p]:.2g}" + (" (conditional)" if v.status == "conditional" else ""))
+                    vals.append(f"{p} = {r.values[p]:.4g} +/- {r.se[p]:.2g}" + (f" ({v.status})" if v.status != "identified" else ""))
                 else:
-                    vals.append(f"{p}: not identifiable")
+                    vals.append(f"{p}: {v.status}")
             st = r.structure.get("sweep/omega")
             smooth = (f", residual smoothness {st['z']:.1f} sigma" + (" (structured)" if st["z"] > 3 else "")
                       if st else "")

@@ -34,6 +34,28 @@ def test_campaign_fit_recovers_every_parameter_within_3_se(campaign_fit, truth):
     assert set(res.runs_used) == {r for r in campaign_fit.residuals["run"].unique() if not r.startswith("sim-energy")}
 
 
+def test_each_coefficients_variance_is_split_over_the_groups_that_determine_it(campaign_fit):
+    """The share of each coefficient's variance that each measurement group carries (what decides
+    a 'model inadequate' verdict) sums to 1 and follows the design: the sweep determines the
+    transmission and motor terms, the lateral runs the rollers', and C_r mostly the sweep too,
+    through the c b it shares its regressor with."""
+    res = campaign_fit
+    share = res.variance_share
+    assert set(share) == set(CAMPAIGN_PARAMS)
+    for p, sh in share.items():
+        assert sum(sh.values()) == pytest.approx(1.0, abs=1e-9) and min(sh.values()) >= 0.0, (p, sh)
+
+    def of(p: str, proc: str) -> float:
+        return sum(v for g, v in share[p].items() if g.startswith(proc + "/"))
+
+    for p in ("a", "k_e", "R_a"):
+        assert of(p, "sweep") > 0.9, (p, share[p])
+    for p in ("a_r", "b_r", "c_r"):
+        assert of(p, "lateral") > 0.8, (p, share[p])
+    assert of("C_r", "sweep") > 0.5 > of("C_r", "forward"), share["C_r"]
+    assert res.inadequate() == [] and res.misses_something() == []
+
+
 def test_energy_error_below_one_percent_on_every_trajectory(campaign_fit, campaign, robot):
     val = validate_energy(campaign_fit.robot, campaign)
     assert len(val.table) == 4

@@ -285,8 +285,8 @@ def plan(robot: Robot, res: FitResult | None, targets: Mapping[str, tuple[float,
             main = max(null[p], key=lambda n: abs(null[p][n]))  # the direction's main parameter
             refused[p] = (f"not separable with the candidate steps (only {comb} is seen); "
                           + separating_experiment(main))
-        elif res is not None and p in res.identifiable and res.identifiable[p].status == "conditional":
-            conditional[p] = res.identifiable[p].reason
+        elif res is not None and p in res.identifiable and res.identifiable[p].condition:
+            conditional[p] = res.identifiable[p].condition
     notes: list[str] = []
     active = [p for p in targets if p not in refused]
     tidx = np.array([names.index(p) for p in active], dtype=int)
