@@ -635,7 +635,7 @@ def read_log(file: Path | str, fmap: CsvMap, options: Options | None = None) -> 
     robot_text = robot_path.read_text(encoding="utf-8") if robot_path is not None else None
     conditions["robot"] = {"value": robot.name, "file": str(robot_path) if robot_path else None,
                            "source": ("given with --robot" if opts.robot_file else "stated in the map") if robot_path
-                           else "not stated (the shipped Omnibot robot file)"}
+                           else "not stated: the shipped Omnibot robot file"}
 
     q = fmap.quantities
     t_raw, (t_unit,) = _read_quantity(file, layout, q["time"], units_used, True)
