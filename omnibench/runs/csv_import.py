@@ -739,8 +739,8 @@ def read_log(file: Path | str, fmap: CsvMap, options: Options | None = None) -> 
         statements.append((named[0], f"stated in the file name (the word {named[1]!r})"))
     for (a, sa), (b, sb) in zip(statements, statements[1:]):
         if a != b:
-            raise UserError(f"{file}: {sa} the robot was {_where_words(a)}, {sb} {_where_words(b)}: give the "
-                            "log with one statement of where it was")
+            raise UserError(f"{file}: where the robot was: {_where_words(a)} ({sa}) but {_where_words(b)} ({sb}); "
+                            "the statements must agree")
 
     # each wheel's duty (a floor run driven by one value: by its direction, once the signs are known)
     pattern_spec = dq.pattern
@@ -768,12 +768,12 @@ def read_log(file: Path | str, fmap: CsvMap, options: Options | None = None) -> 
     stated = statements[0] if statements else None
     if direction is not None:
         if stated is not None and stated[0] == "air":
-            raise UserError(f"{file}: {stated[1]} the robot was in the air, but the map's duty pattern is a floor "
-                            "run's direction")
+            raise UserError(f"{file}: where the robot was: in the air ({stated[1]}) but the map's duty pattern is "
+                            "a floor run's direction")
         if stated is None:
             stated = ("floor", "implied by the map (a duty pattern by the floor run's direction)")
     if stated is not None and where_data is not None and where_data[0] != stated[0]:
-        raise UserError(f"{file}: {stated[1]} the robot was {_where_words(stated[0])}, but the data say "
+        raise UserError(f"{file}: where the robot was: {_where_words(stated[0])} ({stated[1]}) but the data say "
                         f"{_where_words(where_data[0])} ({where_data[1]})")
     if stated is not None:
         where = stated[0]
