@@ -407,3 +407,27 @@ def test_omnibench_samples_of_a_simulated_board_run(tmp_path, capsys):
     assert run.metadata["duty_timing"] == "interval_before" and "the data agree" in cond["duty_timing"]["evidence"]
     assert cond["supply_voltage"]["source"].startswith("read off the data")
     assert cond["where"]["source"] == "given with --where"
+
+
+def _doc_block(text: str, marker: str) -> str:
+    after = text.split(f"<!-- {marker} -->", 1)[1]
+    return after.split("```", 2)[1].split("\n", 1)[1]
+
+
+def test_the_example_in_the_run_format_docs_imports_as_it_says(tmp_path, capsys):
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "run-format.md").read_text()
+    (tmp_path / "bench.csv").write_text(_doc_block(doc, "csv-example-log"))
+    (tmp_path / "bench.toml").write_text(_doc_block(doc, "csv-example-map"))
+    code, out, err = omnibench(capsys, "import", "csv", tmp_path / "bench.csv", "--map", tmp_path / "bench.toml",
+                               "--out", tmp_path / "runs")
+    assert code == 0, err
+    assert "signs: [1, -1, 1, -1] (inferred from the data" in out and "duty_timing: unknown" in out
+    (run_dir,) = [p.parent for p in (tmp_path / "runs").glob("*/run.json")]
+    run = read_run(run_dir)
+    lay = run.metadata["csv_layout"]
+    assert (lay["separator"]["value"], lay["decimal"]["value"], lay["units_row"]["value"]) == (";", ",", True)
+    assert run.metadata["conditions"]["firmware_timing"]["value"] == "unknown"
+    assert run.metadata["supply_voltage"] == pytest.approx(12.04)
+    np.testing.assert_allclose(run.samples["u1"].iloc[1], 180 / 255)
+    np.testing.assert_allclose(run.samples["phi2"].iloc[2], 34 * 2 * math.pi / 1024)
+    np.testing.assert_allclose(run.samples["t"].iloc[-1], 0.187)
