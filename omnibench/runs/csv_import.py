@@ -764,7 +764,7 @@ def read_log(file: Path | str, fmap: CsvMap, options: Options | None = None) -> 
         conditions["direction"] = dir_cond
         pattern = DIRECTIONS[direction]
         u = np.outer(drive, np.asarray(pattern, dtype=float))
-    where_data = _where_from_data(robot, u, phi, t, pose)
+    where_data = _where_from_data(robot, u, phi, pose)
     stated = statements[0] if statements else None
     if direction is not None:
         if stated is not None and stated[0] == "air":
@@ -923,7 +923,7 @@ def _floor_null(robot: Any) -> np.ndarray:
     return n / np.linalg.norm(n)
 
 
-def _where_from_data(robot: Any, u: np.ndarray, phi: np.ndarray, t: np.ndarray,
+def _where_from_data(robot: Any, u: np.ndarray, phi: np.ndarray,
                      pose: np.ndarray | None) -> tuple[str, str] | None:
     """(air|floor, the statistic) when the data show where the robot was, else None.
 
