@@ -29,7 +29,7 @@ _BEFORE: dict[str, tuple[str, str]] = {
 }
 _AFTER: dict[str, tuple[str, str]] = {
     "campaign": ("omnibench.cli.campaign", "Run every procedure, fit, validate and diagnose: one report."),
-    "import": ("omnibench.cli.importer", "Convert other data (the 2019 TFM logs) into runs."),
+    "import": ("omnibench.cli.importer", "Convert other data (the 2019 TFM logs, your own CSV logs) into runs."),
     "fit": ("omnibench.cli.analysis", "Fit every coefficient with uncertainties."),
     "validate-energy": ("omnibench.cli.analysis", "Predicted vs measured battery energy per run."),
     "predict": ("omnibench.cli.analysis", "Model prediction of a logged run vs measurement."),

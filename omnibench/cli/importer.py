@@ -16,7 +16,7 @@ from omnibench.runs.store import run_dirs
 
 @click.group("import")
 def command() -> None:
-    """Convert other data (the 2019 TFM logs) into runs."""
+    """Convert other data (the 2019 TFM logs, your own CSV logs) into runs."""
 
 
 @command.command("tfm")
@@ -122,3 +122,105 @@ def _sketch_key(timing: dict[str, Any]) -> str | None:
     from omnibench.runs.tfm import SKETCHES
 
     return next((k for k, v in SKETCHES.items() if v.get("sketch") == timing.get("sketch")), None)
+
+
+@command.command("csv")
+@click.argument("files", nargs=-1, required=True, type=NonEmptyPath(path_type=Path))
+@click.option("--map", "map_file", required=True, metavar="MAP",
+              help="Map file (TOML) naming the columns, their units and what is known of the log "
+                   "(docs/run-format.md); or the name of a shipped map: "
+                   "omnibench-samples, tfm-square-serial, example.")
+@click.option("--out", "out", default=Path("runs"), show_default=True,
+              type=NonEmptyPath(path_type=Path), help="Folder that receives the run directories.")
+@click.option("--robot", "robot_file", default=None, type=NonEmptyPath(path_type=Path),
+              help="Robot file of the robot that was logged (else the map's, else the shipped Omnibot).")
+@click.option("--procedure", default=None, type=click.Choice(["step_response", "random_duty"]),
+              help="What the log is: square waves (step_response) or a hand-driven trace (random_duty); "
+                   "else the map's.")
+@click.option("--where", default=None, type=click.Choice(["air", "floor"]),
+              help="Where the robot was: wheels in the air or on the floor (else the map's, the file "
+                   "name's, the data's, or unknown). A statement the map or the data contradict is refused.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def csv(files: tuple[Path, ...], map_file: str, out: Path, robot_file: Path | None, procedure: str | None,
+        where: str | None, as_json: bool) -> None:
+    """Import your own logs, CSV or other delimited text, with a map of their columns: one run per
+    FILE, replayed whole by fit, predict and diagnose. Every condition a log does not state is read
+    off the data (with its statistic) or recorded as unknown, in run.json `conditions`."""
+    from omnibench.cli import verbosity
+    from omnibench.runs import read_run
+    from omnibench.runs.check import check_out_folder
+    from omnibench.runs.csv_import import Options, load_map, read_log, shipped_map, write_run
+    from omnibench.runs.tfm import file_digest
+
+    check_out_folder(out)
+    fmap = load_map(shipped_map(map_file))
+    opts = Options(where=where, procedure=procedure, robot_file=robot_file)
+    quiet = verbosity() < 0
+    earlier = _imported(out)
+    todo: dict[str, tuple[Path, Any]] = {}  # digest -> (file, log) to write
+    plan: list[tuple[Path, str, dict[str, Any] | None]] = []  # each file: its digest, and its earlier run
+    for f in files:  # every file read and decided before anything is written
+        try:
+            digest = file_digest(f)
+        except OSError as exc:
+            raise UserError(f"{f}: cannot read ({exc.strerror or type(exc).__name__})") from None
+        log = read_log(f, fmap, opts)
+        if digest in earlier:
+            path, info = earlier[digest]
+            _check_same_reading(f, path, info, fmap.sha256, log)
+            plan.append((f, digest, {"file": str(f), "run": str(path), "already_imported": True}))
+            continue
+        todo.setdefault(digest, (f, log))
+        plan.append((f, digest, None))
+    written: dict[str, dict[str, Any]] = {}
+    for digest, (f, log) in todo.items():
+        path = write_run(log, out)
+        run = read_run(path)
+        written[digest] = {"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": False,
+                           "steps": int(len(run.steps)), "samples": int(len(run.samples)),
+                           "conditions": run.info.raw.get("conditions")}
+    ordered: list[dict[str, Any]] = []
+    first: set[str] = set()
+    for f, digest, before in plan:
+        if before is not None:
+            ordered.append(before)
+        elif digest in first:  # the same bytes again in this command: imported once
+            ordered.append({"file": str(f), "run": written[digest]["run"], "already_imported": True})
+        else:
+            first.add(digest)
+            ordered.append(written[digest])
+    if as_json:
+        click.echo(json.dumps(ordered, indent=2))
+        return
+    for r in ordered:
+        if quiet:
+            click.echo(r["run"])
+        elif r["already_imported"]:
+            click.echo(f"{r['file']}: already imported as {r['run']} (same file, same map): nothing changed")
+        else:
+            click.echo(f"{r['file']}: {r['procedure']} run with {r['steps']} steps and {r['samples']} samples "
+                       f"-> {r['run']}")
+            for name, c in (r["conditions"] or {}).items():
+                click.echo(f"  {name}: {_shown(c.get('value'))} ({c.get('source')})")
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    return "unknown" if value is None else str(value)
+
+
+def _check_same_reading(f: Path, path: Path, info: RunInfo, map_sha: str, log: Any) -> None:
+    """A file imported before (into --out) is imported again only as it was: with another map or
+    other conditions it would be a second reading of the same log, counted twice by every analysis."""
+    raw = info.raw
+    if raw.get("csv_map_sha256") != map_sha:
+        raise UserError(f"{f}: already imported as {path} with another map ({raw.get('csv_map')}); remove that run "
+                        "to import it again, or give another --out")
+    before = raw.get("conditions") or {}
+    for key in ("procedure", "where", "signs", "duty_timing", "direction"):
+        old = (before.get(key) or {}).get("value")
+        new = (log.conditions.get(key) or {}).get("value")
+        if old != new:
+            raise UserError(f"{f}: already imported as {path} with {key} {_shown(old)}, now {_shown(new)}; remove "
+                            "that run to import it again, or give another --out")

@@ -129,6 +129,7 @@ RUN_FIELDS: dict[str, Num | Kind] = {
     "imported": BOOL,
     "supply_voltage": Num(1e-9, 1e4),
     "duty_timing": STR,
+    "conditions": DICT, "csv_layout": DICT,
 }
 
 #: steps.jsonl: key -> kind (units in docs/run-format.md). Other keys: any JSON, finite numbers.
@@ -270,6 +271,9 @@ class RunInfo:
     #: when a sample's duty acted: "interval_before" (omnibench boards) or "from_sample" (2019 logs);
     #: None: not recorded (the reader's default by `imported`)
     duty_timing: str | None = None
+    #: an imported run's conditions, each {value, source[, evidence]}: how it was decided (stated in
+    #: the map or with an option, read off the data with its statistic, or unknown); runs/csv_import.py
+    conditions: dict[str, Any] | None = None
 
     @property
     def complete(self) -> bool:
@@ -338,7 +342,7 @@ def parse_info(doc: Any, run_dir: Path, text: str = "") -> RunInfo:
                    board=doc.get("board"), mode=doc.get("mode"), source=_text(doc.get("source")),
                    source_sha256=_text(doc.get("source_sha256")), sign_map=_signs(doc.get("sign_map")),
                    direction=_text(doc.get("direction")), firmware_timing=doc.get("firmware_timing"),
-                   duty_timing=doc.get("duty_timing"))
+                   duty_timing=doc.get("duty_timing"), conditions=doc.get("conditions"))
 
 
 def _text(value: Any) -> str | None:

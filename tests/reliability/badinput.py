@@ -215,6 +215,21 @@ RUN_DAMAGE: dict[str, Callable[[Path], None]] = {
 }
 
 
+#: a small log and its map for `import csv` (square wave, wheels in the air)
+CSV_LOG = "t,u,e1,e2,e3,e4\n" + "".join(
+    f"{0.03 * k:.2f},{0.5 if (k // 10) % 2 == 0 else -0.5},{c},{c},{c},{c}\n"
+    for k, c in enumerate([0, 5, 15, 27, 40, 53, 66, 79, 92, 105, 112, 109, 99, 87, 74, 61, 48, 35, 22, 9]))
+CSV_MAP = """[run]
+procedure = "step_response"
+where = "air"
+counts_per_rev = 980
+[columns]
+time = { column = "t", unit = "s" }
+duty = { column = "u", unit = "1" }
+encoder = { columns = ["e1", "e2", "e3", "e4"], unit = "counts" }
+"""
+
+
 def _files(root: Path) -> dict[str, str]:
     """Bad files, written once: name -> path."""
     f = root / "files"
@@ -265,6 +280,8 @@ def controls(root: Path, runs: dict[str, Path]) -> list[Case]:
     out += [Case(f"control {c} answers", ["forward", "--port", SIM, "--out", str(root / "new"), "--procedure",
                                           str(files / "good_forward.toml"), "--answers", str(files / "answers" / a)])
             for c, a in [("forward", "good.toml")]]
+    out.append(Case("control import csv", ["import", "csv", str(files / "csv_log.csv"), "--map",
+                                           str(files / "csv_map.toml"), "--out", str(root / "new")]))
     if TFM.is_dir():
         out.append(Case("control import tfm", ["import", "tfm", str(TFM / "square_fast.mat"), "--out",
                                                str(root / "new")]))
@@ -291,6 +308,8 @@ def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
     model = str(ROOT / "omnibench" / "model" / "omnibot.toml")
     cmds_csv = write("commands.csv", "t,u1,u2,u3,u4\n0,0.2,0.2,0.2,0.2\n")
     good_proc = {k: write(f"good_{k}.toml", v) for k, v in PROCEDURES.items()}
+    csv_log = write("csv_log.csv", CSV_LOG)
+    csv_map = write("csv_map.toml", CSV_MAP)
 
     # 1. Numeric options x bad numbers (each command with its other inputs good).
     float_opts = [
@@ -371,6 +390,9 @@ def cases(root: Path, runs: dict[str, Path]) -> list[Case]:
         ("campaign --robot", ["campaign", "--port", SIM, "--out", str(root / "campaign"), "--robot"]),
         ("sim serve --world", ["sim", "serve", "--clock", "fast", "--world"]),
         ("import tfm FILE", ["import", "tfm", "--out", new]),
+        ("import csv FILE", ["import", "csv", "--map", csv_map, "--out", new]),
+        ("import csv --map", ["import", "csv", csv_log, "--out", new, "--map"]),
+        ("import csv --robot", ["import", "csv", csv_log, "--map", csv_map, "--out", new, "--robot"]),
     ]
     for cmd in ("sweep", "forward", "lateral", "energy"):
         file_opts.append((f"{cmd} --procedure", [cmd, "--port", SIM, "--out", new, "--dry-run", "--procedure"]))
