@@ -76,7 +76,7 @@ def test_a_campaign_through_the_firmware_fits_the_plant_and_agrees_with_sim(caps
     assert res["analysis"]["diagnose"]["result"]["selected"] == []
 
     # the same campaign on the simulated board (which rounds and delays as the firmware does)
-    sim = _campaign(capsys, "sim://?seed=5", tmp_path / "sim", "fit")["analysis"]["fit"]["result"]["parameters"]
+    sim = _campaign(capsys, "sim://?seed=5&actuation=firmware", tmp_path / "sim", "fit")["analysis"]["fit"]["result"]["parameters"]
     for name, p in fit["parameters"].items():
         q = sim[name]
         if name in MOTOR_SIDE:

@@ -71,7 +71,7 @@ def test_behind_the_serial_path_a_stuck_and_a_turning_wheel():
     robot = default_robot()
     FN = robot.wheel_mass[0] * GRAVITY
     u_b = robot.b * (1 + robot.c * FN) * robot.R_a / (robot.eta * robot.k_t * robot.V_batt)
-    with Board.open("sim://?plant=independent&mode=upside_down&seed=3") as b:
+    with Board.open("sim://?plant=independent&mode=upside_down&seed=3&actuation=firmware") as b:
         b.configure(telemetry_hz=100)
         b.reset_encoders()
         b.set_duties([0.9 * u_b, 0.4, 0.0, 0.0])
