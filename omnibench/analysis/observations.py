@@ -297,9 +297,19 @@ def run_key(run: Run) -> str:
     return str(run.run_id)
 
 
+#: a reading further than this fraction from the median supply is a glitch, not the supply
+SUPPLY_GLITCH = 0.02
+
+
 def supply_at_rest(samples: pd.DataFrame) -> float:
-    """The run's measured supply, V: median logged V_batt while every duty is 0 (no motor current,
-    so no sag through the battery's resistance), else over all samples; NaN if never logged."""
+    """The run's measured supply, V: mean logged V_batt while every duty is 0 (no motor current,
+    so no sag through the battery's resistance), else over all samples; NaN if never logged.
+
+    The mean, not the median: a board reads its battery through an ADC, and the median of
+    quantised readings is one code (through the firmware's 6:1 divider on a 10-bit ADC, up to
+    half a code off: 14.6 mV, 0.06 % of 24.7 V, which k_e and R_a take up), while the mean averages
+    the conversion noise's dither between neighbouring codes. Readings more than SUPPLY_GLITCH
+    from the median are left out of it."""
     if not len(samples) or "V_batt" not in samples:
         return float("nan")
     v = samples["V_batt"].to_numpy(dtype=float)
@@ -307,7 +317,11 @@ def supply_at_rest(samples: pd.DataFrame) -> float:
     ok = np.isfinite(v) & (v > 0)
     rest = ok & np.all(np.nan_to_num(u) == 0, axis=1)
     sel = rest if rest.any() else ok
-    return float(np.median(v[sel])) if sel.any() else float("nan")
+    if not sel.any():
+        return float("nan")
+    v = v[sel]
+    mid = float(np.median(v))
+    return float(np.mean(v[np.abs(v - mid) <= SUPPLY_GLITCH * mid]))
 
 
 def _firmware_timing(mode: str | None, ft: Mapping[str, Any] | None) -> dict[str, Any]:

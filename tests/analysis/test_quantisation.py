@@ -85,3 +85,21 @@ def test_noise_well_above_a_count_gives_the_textbook_error():
     _, se = encoder_slope_fit(t, phi, CPR)
     _, se_tb = slope_fit(t, phi)
     assert se[0] == pytest.approx(se_tb[0], rel=0.05)
+
+
+def test_the_supply_at_rest_averages_the_adc_dither_and_drops_glitches():
+    """A battery read through the firmware's 10-bit ADC and 6:1 divider (a 29.3 mV code, each
+    reading at its code's centre) with half a code of conversion noise: the median is one code's
+    centre (24.7 V sits 0.09 code above a code's bottom, so the median reads 12 mV high); the supply
+    taken is within a millivolt, and readings of 0.5 V (glitches) do not move it."""
+    import pandas as pd
+
+    from omnibench.analysis.observations import supply_at_rest
+
+    code = 5.0 / 1024 * 6.0
+    rng = np.random.default_rng(4)
+    v = (np.floor((24.7 + rng.normal(0.0, code / 2, 4000)) / code) + 0.5) * code
+    v[::500] = 0.5
+    samples = pd.DataFrame({"V_batt": v, **{f"u{j}": 0.0 for j in range(1, 5)}})
+    assert abs(float(np.median(v)) - 24.7) > 0.005  # what a median of the codes gives
+    assert supply_at_rest(samples) == pytest.approx(24.7, abs=0.001)
