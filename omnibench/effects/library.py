@@ -45,11 +45,12 @@ class Effect:
     #: also fitted from each combination, and the lowest deviance kept
     restarts: Mapping[str, tuple[float, ...]] = field(default_factory=dict)
     #: start values in closed form from the sweep, where the physics gives one (a plugin point
-    #: diagnosis reads): called with the sweep's observation table and the held values of the
-    #: form being fitted, it returns {parameter: value} (the effect's own and the core ones it
-    #: trades against) or None; diagnosis starts there where that fits the data better than the
+    #: diagnosis reads): called with the sweep's observation table, the held values of the
+    #: form being fitted and the current model's Robot, it returns {parameter: value} (the
+    #: effect's own and the core ones it trades against) or None; diagnosis screens the
+    #: candidate there too and starts its fit there where that fits the data better than the
     #: screen's estimate (the shifted deadband: `driver.deadband_sweep_start`)
-    sweep_start: Callable[[Any, Mapping[str, float]], Mapping[str, float] | None] | None = None
+    sweep_start: Callable[[Any, Mapping[str, float], Any], Mapping[str, float] | None] | None = None
 
     def with_form(self, form: str) -> "Effect":
         """This effect with `form`'s parameters held (unchanged for '' or an effect without forms)."""

@@ -492,7 +492,11 @@ class Simulator:
         `simulate_batch`); between arrivals the steps run in one call."""
         from omnibench.model.timing import step_average
 
-        self._history.append((self.t, duties))
+        # a call that repeats the last command issues none: its arrivals would change no duty, and
+        # each would cut the steps between arrivals to one (a realtime board advancing every
+        # millisecond held the same duties and fell behind the wall clock, unacknowledged)
+        if not self._history or not np.array_equal(self._history[-1][1], duties):
+            self._history.append((self.t, duties))
         dt = self.dt
         t_start = self.t
         while self._steps < target and np.any(self._lags):  # a lag changes the duty every step

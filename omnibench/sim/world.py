@@ -83,10 +83,10 @@ class World:
     #: board encoder channel k reads wheel |encoder_wiring[k]|, counting backwards when negative
     #: (None: the same as `wiring`, i.e. the encoder travels with its motor's connector)
     encoder_wiring: tuple[int, int, int, int] | None = None
-    #: "firmware": duties rounded and delayed per wheel as the firmware's drivers take them;
-    #: "ideal": exact and instantaneous (ACTUATIONS). The default stays "ideal" until diagnosis
-    #: finds an undeclared effect through the firmware's actuation as it does without it
-    actuation: str = "ideal"
+    #: "firmware" (the default: the board behaves as the firmware it stands in for): duties
+    #: rounded and delayed per wheel as the firmware's drivers take them; "ideal": exact and
+    #: instantaneous, for model-only studies (ACTUATIONS)
+    actuation: str = "firmware"
 
     def robot(self):  # -> omnibench.model.Robot
         """The Robot this world simulates (default Omnibot or `robot_file`)."""

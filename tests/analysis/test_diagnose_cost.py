@@ -261,6 +261,41 @@ def test_the_screen_holds_the_estimate_in_the_physical_range(omnibot):
     assert inside >= 2
 
 
+def test_the_screen_also_scores_a_candidate_at_its_closed_form_start(omnibot):
+    """A candidate with a closed form from the sweep (the shifted deadband) is also scored by the
+    exact LR at that start (engine.data_points): a deviance drop at a point of the extended model,
+    so no more than its fit reaches, and what the screen reports when the first-order test says
+    less. The first-order test is decided by the 0.1 % of the deadband's secant the declared
+    coefficients cannot mimic; where the fit must move them far it can miss the dead zone
+    altogether (firmware actuation's README campaign: LR 0.01 at the declared fit, 585 here).
+    Without a dead zone in the world, the start gains nothing the add threshold would notice."""
+    from omnibench.analysis.diagnosis.core import _base_free
+
+    dz = EFFECTS["driver_deadband"]
+    for world, seed in (({"driver_deadband": {"u_0": 0.04}}, 3), ({}, 4)):
+        obs = _campaign(omnibot, CampaignSpec(("sweep",)), world, seed=seed, generator="model")
+        problem = engine.Problem(obs, obs.procedures())
+        start, free, _ = _base_free(omnibot, obs, obs.procedures())
+        current = engine.fit_model(problem, start, free, max_nfev=10, passes=2)
+        scr = engine.screen(problem, current, [dz, EFFECTS["quadratic_drag"]])
+        assert "quadratic_drag" not in scr.data_lr  # no closed form: first order only
+        data_lr = scr.data_lr.get("driver_deadband", 0.0)
+        assert scr.approx_lr["driver_deadband"] >= data_lr
+        if not world:
+            assert data_lr < core._lr_threshold(1e-3 / 15, 1)
+            continue
+        pts = engine.data_points(problem, current, dz, dict(dz.start))
+        assert data_lr == pytest.approx(current.deviance - min(problem.deviance(f) for _, _, f in pts))
+        assert data_lr > 10 * core._lr_threshold(1e-3 / 15, 1)
+        # the start's transmission friction from the torque balance, its dead zone from the voltage one
+        robot_d = pts[0][0]
+        assert abs(robot_d.b - 0.5) < 0.005 and abs(robot_d.c - 0.01) < 0.0005
+        if scr.approx_lr["driver_deadband"] == data_lr:
+            assert abs(scr.estimate["driver_deadband"]["u_0"] - 0.04) < 0.001
+        fit = engine.fit_candidate(problem, current, dz, scr.estimate["driver_deadband"])
+        assert engine.lr_test(current, fit, 1)[0] >= data_lr - 0.5
+
+
 def test_a_candidate_promising_only_outside_its_range_is_not_refitted_nor_replaced(omnibot, monkeypatch):
     """The dead zone's world, with the screen made to say that driver_deadband's first-order LR
     holds only outside its range: it is not refitted, the report says why, and it keeps its

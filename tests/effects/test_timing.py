@@ -69,6 +69,24 @@ def test_simulated_board_applies_latency_like_the_batch_simulator(omnibot):
     np.testing.assert_allclose(got, want, atol=1e-9)
 
 
+def test_a_board_advancing_every_step_queues_only_changed_commands(omnibot):
+    """A realtime board advances the Simulator about every millisecond with its duties unchanged:
+    the same trajectory as simulate_batch, and only the commands that changed the duties are
+    queued (each queued command's arrivals run the steps around them one at a time)."""
+    scen = Scenario(mode="upside_down", command_delays=(0.00417, 0.00833, 0.0125, 0.0167))
+    sim = Simulator(omnibot, scen)
+    phi, longest = [], 0
+    t_c = T_CMD + [1.0]
+    for k in range(len(T_CMD)):
+        for _ in range(round((t_c[k + 1] - t_c[k]) / 0.001)):
+            phi.append(sim.advance(np.array(U_CMD[k]), 0.001).phi.copy())
+            longest = max(longest, len(sim._history))
+    ref = simulate_batch(omnibot, scen, T_CMD, U_CMD, 1.0).frame(0)
+    want = ref[[f"phi{j}" for j in range(1, 5)]].to_numpy()[1:]
+    np.testing.assert_allclose(np.array(phi), want[: len(phi)], atol=1e-9)
+    assert longest <= 2  # the command each wheel still holds and the one on its way
+
+
 def test_sub_step_latency_moves_the_trajectory_continuously(omnibot):
     """Latencies between two physics steps give trajectories between theirs, without jumps (a
     fit can differentiate them): the step a change falls in carries the average duty."""

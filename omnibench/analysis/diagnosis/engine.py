@@ -354,6 +354,9 @@ class Screen:
     #: order. diagnosis fits neither a candidate nor a pair's second effect (which starts from
     #: the estimate clipped into the range, `fit_candidates`) whose LR holds only outside it
     in_range: dict[str, float] = field(default_factory=dict)
+    #: the exact LR at the candidate's closed-form start from the sweep (`data_points`), for the
+    #: candidates that have one: approx_lr (and estimate, in_range) take it where it is larger
+    data_lr: dict[str, float] = field(default_factory=dict)
 
 
 def secant_steps(effect: Effect) -> dict[str, float]:
@@ -419,7 +422,24 @@ def screen(problem: Problem, current: ModelFit, candidates: Sequence[Effect]) ->
         else:
             inside = optimize.lsq_linear(A, r_perp, bounds=(lo, hi)).x
             in_range[eff.name] = max(lr_of(r_perp - A @ inside), 0.0)
-    return Screen(out, est, distinct, in_range)
+    # where the physics gives the candidate's values in closed form, its LR there too: an exact
+    # deviance drop at a point of the extended model, so never above the fitted LR. The first-order
+    # test cannot stand in for it when the candidate's fit moves the declared coefficients far (the
+    # README deadband campaign: R_a 3.5 -> 1.85 ohm, c 0.0049 -> 0.01): 99.9 % of the deadband's
+    # secant is the fitted coefficients' directions, and whether the rest reads as a dead zone
+    # (firmware actuation: estimate u_0 = -0.0001, LR 0.01) or not is chance
+    data_lr = {}
+    for eff in candidates:
+        pts = data_points(problem, current, eff, dict(eff.start))
+        if not pts:
+            continue
+        dev, st = min(((problem.deviance(f), st) for _, st, f in pts), key=lambda x: x[0])
+        data_lr[eff.name] = max(current.deviance - dev, 0.0)
+        if data_lr[eff.name] > out[eff.name]:
+            out[eff.name] = data_lr[eff.name]
+            est[eff.name] = {p: float(st[p]) for p in eff.fit if p in st}
+            in_range[eff.name] = max(in_range[eff.name], data_lr[eff.name])
+    return Screen(out, est, distinct, in_range, data_lr)
 
 
 def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate: Mapping[str, float] | None = None,
@@ -439,24 +459,12 @@ def fit_candidate(problem: Problem, current: ModelFit, effect: Effect, estimate:
                 start[p] = v
     free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
     base = current.robot
-    data = {k: v for k, v in data_start(problem, current, effect).items() if k in free}
-    if data:
-        robot_d = with_params(base, {k: v for k, v in data.items() if "." not in k})
-        start_d = {**start, **{k.split(".", 1)[1]: v for k, v in data.items() if "." in k}}
-        # the parameters it leaves take one Gauss-Newton step there (the current fit's Jacobian)
-        rest = [k for k, p in enumerate(current.free) if p not in data]
-        f_d = problem.predict([_robot_with_effect(robot_d, effect, start_d)])[0]
-        w = current.weights(problem)
-        used = problem.used
-        step, *_ = np.linalg.lstsq((current.J[:, rest] * w[:, None])[used], ((problem.y - f_d) * w)[used], rcond=None)
-        robot_g = with_params(robot_d, {current.free[k]: float(np.clip(param_value(robot_d, current.free[k]) + dv,
-                                                                       *param_bounds(robot_d, current.free[k])))
-                                        for k, dv in zip(rest, step)})
-        starts = [(base, start), (robot_d, start_d), (robot_g, start_d)]
-        F = problem.predict([_robot_with_effect(r, effect, st) for r, st in starts[::2]])
-        dev = [problem.deviance(F[0]), problem.deviance(f_d), problem.deviance(F[1])]
+    pts = data_points(problem, current, effect, start)
+    if pts:
+        f_s = problem.predict([_robot_with_effect(base, effect, start)])[0]
+        starts = [(base, start, f_s), *pts]
         # kept where it fits the data better than the screen's start
-        base, start = starts[int(np.argmin(dev))]
+        base, start, _ = starts[int(np.argmin([problem.deviance(f) for _, _, f in starts]))]
     # the current fit's noise scales describe its own residuals, not a start that moved its
     # parameters: there the first pass weighs the groups by the start's (the README deadband
     # campaign's forward-run wheel speeds, 0.35 mrad/s rms in the declared fit, otherwise held a
@@ -518,12 +526,13 @@ GROUND_TORQUES = ("a_r", "b_r", "C_r")
 def data_start(problem: Problem, current: ModelFit, effect: Effect) -> dict[str, float]:
     """Start values ('effect.param' and the core parameters it trades against) that the effect's
     closed form (`Effect.sweep_start`) gives from the sweep for `effect` in its form, {} when it
-    has none or gives none. The shifted deadband's, from the sweep's voltage balance: the
-    declared fit's R_a took up the dead zone's offset, and from it the fit crept along the valley
-    of u_0 with R_a and the Coulomb term, every settle pass to its evaluation limit."""
+    has none or gives none. The shifted deadband's, from the sweep's voltage balance (u_0, R_a,
+    k_e) and torque balance (a, b, c): the declared fit's R_a took up the dead zone's offset, and
+    from it the fit crept along the valley of u_0 with R_a and the Coulomb term, every settle
+    pass to its evaluation limit."""
     if effect.sweep_start is None or "sweep" not in problem.procedures:
         return {}
-    got = effect.sweep_start(problem.obs.table("sweep"), effect.fixed)
+    got = effect.sweep_start(problem.obs.table("sweep"), effect.fixed, current.robot)
     if not got:
         return {}
     out = {(f"{effect.name}.{k}" if k in effect.fit else k): float(v) for k, v in got.items()}
@@ -534,6 +543,30 @@ def data_start(problem: Problem, current: ModelFit, effect: Effect) -> dict[str,
         k = current.values["R_a"] / got["R_a"]
         out.update({p: current.values[p] * k for p in GROUND_TORQUES if p in current.values})
     return out
+
+
+def data_points(problem: Problem, current: ModelFit, effect: Effect,
+                start: Mapping[str, float]) -> list[tuple[Robot, dict[str, float], np.ndarray]]:
+    """The candidate at its closed-form start (`data_start`; `start` for the effect's parameters it
+    does not give) and after one Gauss-Newton step there of the current fit's parameters it leaves
+    (the current fit's Jacobian): [(robot, effect values, predictions)] of the two (two
+    simulations), [] when the effect has no closed form for these data."""
+    free = list(current.free) + [f"{effect.name}.{p}" for p in effect.fit]
+    data = {k: v for k, v in data_start(problem, current, effect).items() if k in free}
+    if not data:
+        return []
+    robot_d = with_params(current.robot, {k: v for k, v in data.items() if "." not in k})
+    start_d = {**start, **{k.split(".", 1)[1]: v for k, v in data.items() if "." in k}}
+    rest = [k for k, p in enumerate(current.free) if p not in data]
+    f_d = problem.predict([_robot_with_effect(robot_d, effect, start_d)])[0]
+    w = current.weights(problem)
+    used = problem.used
+    step, *_ = np.linalg.lstsq((current.J[:, rest] * w[:, None])[used], ((problem.y - f_d) * w)[used], rcond=None)
+    robot_g = with_params(robot_d, {current.free[k]: float(np.clip(param_value(robot_d, current.free[k]) + dv,
+                                                                   *param_bounds(robot_d, current.free[k])))
+                                    for k, dv in zip(rest, step)})
+    f_g = problem.predict([_robot_with_effect(robot_g, effect, start_d)])[0]
+    return [(robot_d, start_d, f_d), (robot_g, start_d, f_g)]
 
 
 def _restarts(effect: Effect, start: Mapping[str, float]) -> list[dict[str, float]]:
