@@ -56,6 +56,9 @@ def sha256_file(path: str | Path | None) -> str | None:
 PHYSICS_SETTINGS = frozenset({"world", "robot", "mode", "payload", "wheel_mass", "plant", "wiring", "encoder_wiring",
                               "actuation"})
 PHYSICS_PREFIXES = ("effects.",)
+#: physics settings spelled at their default value name the default world (omnibench.sim.world's
+#: defaults; tests/runs/test_provenance.py ties the two): ``sim://?actuation=firmware`` is ``sim://``
+PHYSICS_DEFAULTS = {"actuation": "firmware"}
 CONDUCT_SETTINGS = frozenset({"seed", "clock", "speed", "dt", "board_id", "firmware_version", "protocol", "baudrate",
                               "name", "faults", "sensors"})
 
@@ -67,7 +70,8 @@ def world_of(port: str | None) -> str | None:
     if not port or not port.startswith("sim:"):
         return None
     pairs = parse_qsl(urlsplit(port).query, keep_blank_values=True)
-    kept = {k: v for k, v in pairs if k in PHYSICS_SETTINGS or k.startswith(PHYSICS_PREFIXES)}
+    kept = {k: v for k, v in pairs if (k in PHYSICS_SETTINGS or k.startswith(PHYSICS_PREFIXES))
+            and PHYSICS_DEFAULTS.get(k) != v}
     return "&".join(f"{k}={_number_text(v)}" for k, v in sorted(kept.items()))
 
 

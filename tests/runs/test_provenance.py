@@ -121,3 +121,15 @@ def test_one_world_whatever_its_seed_faults_or_order_of_settings():
         world_of("sim://?payload=1&effects.stribeck_friction.v_s=0.1")
     assert world_of("sim://?payload=1") != world_of("sim://?payload=2")
     assert world_of("/dev/ttyACM0") is None
+
+
+def test_a_setting_at_its_default_names_the_default_world():
+    """`sim://?actuation=firmware` is the board `sim://` is; `actuation=ideal` another world, and
+    the defaults written here are the simulator's own."""
+    from omnibench.runs.provenance import PHYSICS_DEFAULTS, world_of
+    from omnibench.sim.world import World
+
+    assert world_of("sim://?actuation=firmware&seed=3") == world_of("sim://") == ""
+    assert world_of("sim://?actuation=ideal") == "actuation=ideal"
+    for name, value in PHYSICS_DEFAULTS.items():
+        assert str(getattr(World(), name)) == value, name
