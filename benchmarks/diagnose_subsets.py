@@ -170,8 +170,9 @@ def main(argv: list[str] | None = None) -> int:
             res = diagnose_once([runs[n] for n in sub], threads=args.threads, cpu_limit=args.cpu_limit)
             row = {"logs": list(sub), **{k: res[k] for k in ("cpu", "wall", "returncode", "over_limit", "stderr_tail")},
                    **summary_of(res)}
-            print(f"  [{time.monotonic() - t0:.0f} s] {' + '.join(sub)}: {row['cpu']:.1f} s CPU", file=sys.stderr,
-                  flush=True)
+            # as each one ends (the table on stdout comes at the end)
+            print(f"  [{time.monotonic() - t0:.0f} s] {' + '.join(sub)}: {row['cpu']:.1f} s CPU; "
+                  f"{show_selected(row['selected'])}; {show_heldout(row['heldout'])}", file=sys.stderr, flush=True)
             return row
 
         # the largest subsets (the dearest) first, so that --jobs does not end with one left running
