@@ -18,6 +18,8 @@ library's parameter bounds both stay far below the speeds' decay rates.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from omnibench.model import kernel
@@ -26,7 +28,16 @@ from omnibench.model.terms import Layout
 H_PROBE = 1e-9  # s: the probe step; its own bias is removed exactly (see _decay_rates)
 NUDGE = 1e-4  # speed perturbation as a fraction of the narrowest sign width it reaches
 UPSIDE_DOWN_NUDGE = 0.1  # rad/s: the nudge's reference speed upside down (x NUDGE)
-STICK_OFFSET = 10.0  # upside down: probe about this many nudges above zero speed
+STICK_OFFSET = 10.0  # upside down: probe at least this many nudges above zero speed
+#: Upside down, the probe's slowest speed must stay this many times the speed its probe step
+#: takes off (dry friction over the inertia, x H_PROBE) above zero: a probe step that reaches
+#: zero sticks the wheel, and the "rate" read is 1 / H_PROBE (1e9 /s: 400 000 sub-steps per
+#: 1 ms physics step, one simulation of the 2019 square waves for hours) instead of the
+#: viscous one. At STICK_OFFSET nudges (1e-4 rad/s) a wheel with b = 0.38 N m sticks so for
+#: any I_w below 3.8e-6 kg m^2 (b H_PROBE / I_w = 1e-4 rad/s), which a fit's trial step can
+#: ask for (I_w's lower bound is 1e-6): tests/model/test_stiffness_light_wheel.py.
+STICK_MARGIN = 4.0
+STICK_PROBES = 6  # probes at most (offsets up to ~4^5 STICK_OFFSET)
 GROUND_DOFS = (kernel.X_V, kernel.X_V + 1, kernel.X_V + 2)  # body velocity v1, v2, psi_dot
 UPSIDE_DOWN_DOFS = tuple(kernel.X_PHID + j for j in range(4))  # free wheel speeds
 
@@ -92,18 +103,48 @@ def _decay_rates_of_rows(X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndar
     ground_nudge = NUDGE * np.minimum(eps_phi * rv["r"] / (1.0 + rv["L"] + rv["l"]), eps_sigma / 1.5)
     # Upside down the signs are exact and sticking is decided by the kernel's stick probe, so
     # the dry friction is no stiffness there: the speeds are nudged about a small positive speed
-    # (STICK_OFFSET x the probe nudge), on one side of the sign's jump.
+    # (STICK_OFFSET x the probe nudge, more for a light wheel: _upside_down_rates), on one side
+    # of the sign's jump.
     up_nudge = NUDGE * np.full_like(eps_phi, UPSIDE_DOWN_NUDGE)
-    for rows, dofs, nudge, offset in ((np.flatnonzero(~upside), GROUND_DOFS, ground_nudge, 0.0),
-                                      (np.flatnonzero(upside), UPSIDE_DOWN_DOFS, up_nudge, STICK_OFFSET)):
-        if rows.size:
-            lam[rows] = _decay_rates(rows, dofs, nudge[rows], X0, RV, P, EN, Rm, Sm, Minv, M, lay, offset)
+    rows = np.flatnonzero(~upside)
+    if rows.size:
+        lam[rows] = _decay_rates(rows, GROUND_DOFS, ground_nudge[rows], X0, RV, P, EN, Rm, Sm, Minv, M, lay)
+    rows = np.flatnonzero(upside)
+    if rows.size:
+        lam[rows] = _upside_down_rates(rows, up_nudge[rows], X0, RV, P, EN, Rm, Sm, Minv, M, lay)
     return lam
 
 
-def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout, offset: float = 0.0,
-                 center: np.ndarray | None = None) -> np.ndarray:
-    """center: (rows, d) speeds to linearise about instead of rest."""
+def _upside_down_rates(rows, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout) -> np.ndarray:
+    """Decay rates upside down, probed about a small positive speed: STICK_OFFSET nudges, or more
+    where the probe step's own fall of speed would bring the slowest probe within STICK_MARGIN
+    times that fall of zero (a light wheel with dry friction: the probe must not stick). A probe
+    that stuck saw only part of the fall (to zero), so such rows are probed again from an offset
+    of at least STICK_MARGIN times what they saw, until the margin holds (at most STICK_PROBES
+    probes; the fall barely depends on the speed this close to zero, so once a probe does not
+    stick the next keeps the margin)."""
+    lam = np.zeros(rows.size)
+    offset = np.full(rows.size, STICK_OFFSET)
+    todo = np.arange(rows.size)
+    for _ in range(STICK_PROBES):
+        got, drop = _decay_rates(rows[todo], UPSIDE_DOWN_DOFS, nudge[todo], X0, RV, P, EN, Rm, Sm, Minv, M, lay,
+                                 offset[todo], with_drop=True)
+        lam[todo] = got
+        need = 1.0 + STICK_MARGIN * drop / nudge[todo]  # offset (in nudges) that keeps the margin
+        short = need > offset[todo]
+        offset[todo[short]] = need[short]
+        todo = todo[short]
+        if not todo.size:
+            break
+    return lam
+
+
+def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout,
+                 offset: float | np.ndarray = 0.0, center: np.ndarray | None = None,
+                 with_drop: bool = False) -> Any:
+    """The rates of `rows`, their speeds `dofs` nudged by `nudge` (per row) about rest, or
+    about `center` ((rows, d) speeds), shifted by `offset` nudges (a number, or one per row).
+    with_drop: (rates, per row the largest fall of a probed speed in the probe step)."""
     d = len(dofs)
     n = rows.size * 2 * d  # each trajectory with each speed nudged up and down
     take = lambda a: np.ascontiguousarray(np.repeat(a[rows], 2 * d, axis=0))  # noqa: E731
@@ -112,7 +153,8 @@ def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout,
     sign = np.zeros((2 * d, d))
     for j in range(d):
         sign[2 * j, j], sign[2 * j + 1, j] = 1.0, -1.0
-    X[:, list(dofs)] += np.tile(sign + offset, (rows.size, 1)) * np.repeat(nudge, 2 * d)[:, None]
+    shift = np.repeat(np.broadcast_to(np.asarray(offset, dtype=float), (rows.size,)), 2 * d)[:, None]
+    X[:, list(dofs)] += (np.tile(sign, (rows.size, 1)) + shift) * np.repeat(nudge, 2 * d)[:, None]
     XF = kernel.load_kernel(lay).run_serial(
         X, take(RV), take(P), take(EN), take(Rm), take(Sm), take(Minv), take(M),
         np.zeros(1, dtype=np.int64), np.zeros((1, 1, 4)), 0.0, H_PROBE, np.ones(1, dtype=np.int64),
@@ -124,7 +166,11 @@ def _decay_rates(rows, dofs, nudge, X0, RV, P, EN, Rm, Sm, Minv, M, lay: Layout,
     A = np.transpose((f[:, :, 0, :] - f[:, :, 1, :]) / (2.0 * nudge[:, None, None]), (0, 2, 1))
     mu = np.linalg.eigvals(A).astype(complex)
     z = 2.0 * mu / (1.0 + np.sqrt(1.0 + 2.0 * H_PROBE * mu))
-    return np.real(-z).max(axis=1)
+    lam = np.real(-z).max(axis=1)
+    if not with_drop:
+        return lam
+    fall = (X - XF)[:, list(dofs)].reshape(rows.size, 2 * d * d).max(axis=1)
+    return lam, np.maximum(fall, 0.0)
 
 
 #: Factor on the sign widths that takes the signs' slope out of the rate (ground_split).
