@@ -181,14 +181,16 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     if as_json:
         _echo_json({"model": str(model), "nrmse": top,
                     "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse, "firmware_timing": p.firmware,
-                              **({"firmware_profiled": p.firmware_profiled} if p.firmware_profiled else {})}
+                              **({"firmware_profiled": p.firmware_profiled} if p.firmware_profiled else {}),
+                              **({"mode": p.mode, "mode_profiled": p.mode_profiled} if p.mode_profiled else {})}
                              for p in preds],
                     "plots": figs,
                     "leave_one_run_out": None if loro is None else [
                         {"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in loro]})
         return
     for p in preds:
-        click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "") + "):")
+        click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "")
+                   + (f"; {p.mode_text()}" if p.mode_profiled else "") + "):")
         for k, v in p.nrmse.items():
             click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
     for f in figs:  # type: ignore[assignment]
