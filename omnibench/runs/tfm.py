@@ -244,6 +244,7 @@ def where_from_dynamics(t: np.ndarray, duty: np.ndarray, phi: np.ndarray, robot:
     at least WHERE_MARGIN times its own best. The statistic also keeps each mode's NRMSE with
     the file's own wheel (`nrmse_*_file`) and where each mode's best lies (`best_*`)."""
     from omnibench.model import Scenario, default_robot
+    from omnibench.model.scenario import Mode
     from omnibench.model.simulator import simulate_batch
 
     rb = robot or default_robot()
@@ -255,7 +256,7 @@ def where_from_dynamics(t: np.ndarray, duty: np.ndarray, phi: np.ndarray, robot:
     if den <= 0:
         return None, {"nrmse_air": None, "nrmse_floor": None}, "the wheels never turned: where cannot be read"
     change = np.concatenate([[0], np.flatnonzero(np.any(np.diff(U, axis=0) != 0, axis=1)) + 1])
-    modes = {"air": "upside_down", "floor": "ground"}
+    modes: dict[str, Mode] = {"air": "upside_down", "floor": "ground"}
     grid = [(name, float(f), float(lag)) for name in modes for f in iw_factors for lag in lags]
     robots = [rb.replace(I_w=f * rb.I_w) for _, f, _ in grid]
     scenarios = [Scenario(mode=modes[name], effects={"actuator_lag": {"tau_a": lag}} if lag > 0 else {})
