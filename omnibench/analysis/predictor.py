@@ -523,9 +523,10 @@ def run_mode(obs: Observations, run: str) -> Mode:
     """Where a trace-replay run was: 'upside_down' (wheels in the air) or 'ground', as recorded
     (the run schema allows only these two, and Scenario checks the value again). A run read from
     disk that does not say (`mode` None: its import could not read it off the data) raises
-    UnknownMode, a one-line UserError asking for --where: a fit never replays it in a mode taken
-    by default (predict profiles over both instead, predict.predict_runs). Observations built in
-    memory without the key (the simulated square waves) are in the air."""
+    UnknownMode, a one-line UserError asking for --where: it is never replayed in a mode taken by
+    default. predict (predict.predict_runs), fit and diagnose (analysis/modes.py) give it each mode
+    in turn before it gets here; only a caller that does not profile meets the error.
+    Observations built in memory without the key (the simulated square waves) are in the air."""
     info = obs.runs.get(run, {})
     if "mode" in info and info["mode"] is None:
         raise UnknownMode(f"run {run}: where the robot was is unknown (its import could not read it off the "

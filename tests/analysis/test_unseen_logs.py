@@ -2,13 +2,16 @@
 independent physics (omnibench/worlds/independent.py): `import tfm` with no options reads each
 condition off the data (or keeps it unknown), records the evidence, refuses an option the data
 contradict, and a model fitted on other logs predicts each as imported no worse than with the
-right options declared.
+right options declared; fit and diagnose profile a run of unknown mode instead of refusing it.
 
 The cases: an RC-timed log (44 ms loop, the RC sketch's send order, offset and signs) in the
 square-wave layout; an in-air square wave saved in the floor-run layout; a floor run in the
 floor-run layout; a square-wave log with a loop between the two sketches' (37 ms); and an
 in-air log in the floor-run layout from a robot whose wheels are three times heavier than the
-robot file says, which the file's dynamics cannot place (where unknown)."""
+robot file says. Where the robot was is read off a floor-run layout only with the wheel's
+inertia and an actuator lag profiled (runs/tfm.where_from_dynamics): the heavy wheels must not
+pass for the floor, and a floor run that a lighter, lagging wheel in the air would replay
+almost as well stays unknown."""
 
 from __future__ import annotations
 
@@ -131,12 +134,21 @@ def test_an_in_air_square_wave_in_the_floor_layout_reads_as_in_the_air(cases):
     assert c["sketch"]["value"] == "square" and c["sketch"]["decided"] == "inferred from the data"
 
 
-def test_a_floor_run_in_the_floor_layout_still_reads_as_floor_with_its_direction(cases):
+def test_a_floor_run_in_the_floor_layout_is_never_read_as_in_the_air(cases):
+    """With the wheel's nuisance profiled, a light wheel behind a lagging driver in the air
+    replays this floor run within the margin of the floor's fit: it reads floor or unknown,
+    never air, and its direction is still read off the data."""
     run, c = _conditions(cases["plain"]["floor_run"])
     w = c["where"]
-    assert w["value"] == "floor" and w["decided"] == "inferred from the data"
-    assert w["statistic"]["nrmse_air"] >= WHERE_MARGIN * w["statistic"]["nrmse_floor"]
-    assert run.metadata["mode"] == "ground"
+    assert w["value"] in ("floor", "unknown")
+    st = w["statistic"]
+    assert st["nrmse_floor"] <= st["nrmse_air"]
+    if w["value"] == "unknown":
+        assert st["nrmse_air"] < WHERE_MARGIN * st["nrmse_floor"] and run.metadata["mode"] is None
+    else:
+        assert st["nrmse_air"] >= WHERE_MARGIN * st["nrmse_floor"] and run.metadata["mode"] == "ground"
+    # the file's own wheel in the air misses the floor run by far: only the profiled one comes close
+    assert st["nrmse_air_file"] >= WHERE_MARGIN * st["nrmse_floor"]
     assert c["direction"]["value"] == "forward" and c["direction"]["decided"] == "inferred from the data"
     # a 30-40 ms clock (median 35 ms): neither sketch's loop
     assert c["sketch"]["value"] == "unknown" and run.metadata["firmware_timing"]["sketch"] == "unknown"
@@ -155,15 +167,20 @@ def test_a_loop_between_the_two_sketches_keeps_the_sketch_unknown(cases):
     assert run.metadata["firmware_timing"]["sketch"] == "arduino/square/square.ino"
 
 
-def test_a_log_the_robot_file_cannot_place_keeps_where_unknown(cases):
-    """Wheels three times heavier than the file says settle between its in-air and floor
-    dynamics: neither NRMSE is half the other's, so the run's mode stays unknown."""
+def test_wheels_three_times_heavier_than_the_file_says_are_not_read_as_the_floor(cases, robot):
+    """Against the file's own wheel an in-air log of wheels three times heavier settles like the
+    floor's; with I_w profiled it reads in the air (or unknown), the best inertia near the true."""
     run, c = _conditions(cases["plain"]["unplaceable"])
-    w = c["where"]
-    assert w["value"] == "unknown" and w["decided"] == "unknown"
-    lo, hi = sorted((w["statistic"]["nrmse_air"], w["statistic"]["nrmse_floor"]))
-    assert hi < WHERE_MARGIN * lo
-    assert run.metadata["mode"] is None
+    w, st = c["where"], c["where"]["statistic"]
+    assert w["value"] in ("air", "unknown") and st["nrmse_air"] < st["nrmse_floor"]
+    if w["value"] == "air":
+        assert w["decided"] == "inferred from the data" and run.metadata["mode"] == "upside_down"
+        assert st["nrmse_floor"] >= WHERE_MARGIN * st["nrmse_air"]
+    else:
+        assert run.metadata["mode"] is None
+    # the file's wheel fits it worse than the profiled one, whose inertia is the grid's nearest to 3 x
+    assert st["nrmse_air_file"] > 1.5 * st["nrmse_air"]
+    assert 2.0 * robot.I_w <= st["best_air"]["I_w"] <= 3.5 * robot.I_w + 1e-12
 
 
 def _cli(capsys, *args):
@@ -182,7 +199,7 @@ def test_options_the_data_contradict_are_refused_in_one_line(cases, tmp_path, ca
     files = cases["files"]
     for name, opts, words in (("rc_timed_square", ["--sketch", "square"], ("--sketch square", "44.0 ms")),
                               ("air_in_floor_layout", ["--where", "floor"], ("--where floor", "in the air")),
-                              ("floor_run", ["--where", "air"], ("--where air", "on the floor"))):
+                              ("unplaceable", ["--where", "floor"], ("--where floor", "in the air"))):
         code, _, err = _cli(capsys, files[name], *opts, "--out", tmp_path / name)
         assert code == 2 and len(err.strip().splitlines()) == 1, (name, err)
         assert all(w in err for w in words) and "--force" in err, (name, err)
@@ -194,19 +211,76 @@ def test_options_the_data_contradict_are_refused_in_one_line(cases, tmp_path, ca
     run, c = _conditions(path)
     assert run.metadata["mode"] == "ground" and c["where"]["decided"] == "stated by the user"
     assert "the data say in the air" in c["where"]["overrides"]
+    # where the data cannot tell (the floor run, unknown with the wheel profiled), the user's word stands
+    if read_run(cases["plain"]["floor_run"]).metadata["mode"] is None:
+        code, out, err = _cli(capsys, files["floor_run"], "--where", "floor", "--out", tmp_path / "g")
+        assert code == 0, err
+        (path,) = list((tmp_path / "g").iterdir())
+        run, c = _conditions(path)
+        assert run.metadata["mode"] == "ground" and c["where"]["decided"] == "stated by the user"
+        assert "overrides" not in c["where"] and "profiled" in c["where"]["evidence"]
 
 
-def test_fit_refuses_a_run_of_unknown_mode_and_asks_for_where(cases, capsys, robot):
+def _unknown_mode_run(cases):
+    path = cases["plain"]["floor_run"]
+    if read_run(path).metadata["mode"] is not None:
+        pytest.skip("the floor run was placed at import: no run of unknown mode to profile")
+    return path
+
+
+def test_fit_profiles_a_run_of_unknown_mode_and_keeps_the_true_mode(cases, capsys):
+    """fit with a run of unknown mode: both modes fitted, the floor (the truth) kept, the
+    output and the JSON name the mode given and the alternative's cost."""
+    import json
+
     from omnibench.cli import main
 
+    unknown = _unknown_mode_run(cases)
     model = Path(__file__).resolve().parents[2] / "omnibench" / "model" / "omnibot.toml"
-    with pytest.raises(SystemExit) as exit_:
-        main(["fit", str(cases["plain"]["unplaceable"]), str(cases["train"][0]), "--procedures", "step_response",
-              "--free", "a", "--no-per-wheel", "--out", str(Path(cases["train"][0]).parent / "m.toml"),
-              "--robot", str(model)])
-    err = capsys.readouterr().err
-    assert exit_.value.code == 2 and len(err.strip().splitlines()) == 1
-    assert "where the robot was is unknown" in err and "--where" in err
+    out = Path(cases["train"][0]).parent / "m.toml"
+    main(["fit", str(unknown), str(cases["train"][0]), "--procedures", "step_response", "--free", "a",
+          "--no-per-wheel", "--out", str(out), "--robot", str(model), "--json"])
+    captured = capsys.readouterr()
+    prof = json.loads(captured.out)["mode_profile"]
+    (name,) = prof["chosen"]
+    assert name == read_run(unknown).info.run_id
+    assert prof["chosen"][name] == "ground"
+    costs = {t["modes"][name]: t["cost"] for t in prof["tried"]}
+    assert set(costs) == {"ground", "upside_down"} and costs["ground"] < costs["upside_down"]
+    assert "assignment 2 of 2" in captured.err
+    main(["fit", str(unknown), str(cases["train"][0]), "--procedures", "step_response", "--free", "a",
+          "--no-per-wheel", "--out", str(out), "--robot", str(model)])
+    text = capsys.readouterr().out
+    assert "where unknown, profiled over 2 assignments of modes: kept" in text and "on the floor" in text
+
+
+def test_more_unknown_mode_runs_than_profiled_are_refused_in_one_line():
+    from omnibench.analysis.modes import MAX_UNKNOWN_MODES, assignments
+    from omnibench.errors import UserError
+
+    assert len(assignments([f"r{k}" for k in range(MAX_UNKNOWN_MODES)])) == 2 ** MAX_UNKNOWN_MODES
+    with pytest.raises(UserError) as exc:
+        assignments([f"r{k}" for k in range(MAX_UNKNOWN_MODES + 1)])
+    assert "--where" in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_diagnose_profiles_a_run_of_unknown_mode_at_its_declared_fit(cases, capsys):
+    """diagnose with a run of unknown mode: the declared fit in both modes, the floor kept and
+    said so, and the rest of the diagnosis replays the run on the floor."""
+    import json
+
+    from omnibench.cli import main
+
+    unknown = _unknown_mode_run(cases)
+    model = Path(__file__).resolve().parents[2] / "omnibench" / "model" / "omnibot.toml"
+    main(["diagnose", "--model", str(model), str(unknown), str(cases["train"][0]), "--candidates", "actuator_lag",
+          "--max-effects", "1", "--json"])
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    prof = data["mode_profile"]
+    (name,) = prof["chosen"]
+    assert prof["chosen"][name] == "ground" and len(prof["tried"]) == 2
+    assert any("the diagnosis keeps these modes" in n for n in data["notes"])
 
 
 def test_each_log_as_imported_is_predicted_no_worse_than_with_the_right_options(cases, robot):
@@ -231,6 +305,7 @@ def test_each_log_as_imported_is_predicted_no_worse_than_with_the_right_options(
         assert math.isfinite(plain) and plain < 1.0, (name, plain)
         print(f"{name}: wheel-speed NRMSE as imported {100 * plain:.2f} %, declared {100 * declared:.2f} %"
               + (f"; {p.mode_text()}" if p.mode_profiled else "") + (f"; {p.firmware_text()}" if p.firmware else ""))
-    p, _ = nrmse(cases["plain"]["unplaceable"])
-    assert set(p.mode_profiled) == {"upside_down", "ground"} and p.mode in p.mode_profiled
-    assert "where unknown" in p.mode_text()
+    # the floor run, where unknown at import: replayed both ways, the floor kept
+    p, _ = nrmse(_unknown_mode_run(cases))
+    assert set(p.mode_profiled) == {"upside_down", "ground"} and p.mode == "ground"
+    assert p.mode_profiled["ground"] < p.mode_profiled["upside_down"] and "where unknown" in p.mode_text()
