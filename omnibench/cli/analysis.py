@@ -161,10 +161,20 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
                                             allow_mixed=allow_mixed,
                                             model=(f"the model {model}", model_build(robot))),
                                  robot)
-    loro = _baseline(robot, obs, model) if baseline else None
     preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)
     if not preds:
         raise UserError("the runs hold nothing to predict")
+    loro_note = ""
+    if baseline:
+        # a run of unknown mode enters the refits in the mode its replay through the model chose
+        from omnibench.analysis.modes import WORDS, with_modes
+
+        chosen = {p.run: p.mode for p in preds if p.mode_profiled and p.mode}
+        loro = _baseline(robot, with_modes(obs, chosen), model)
+        loro_note = "".join(f"\n{r}: where unknown, in the refits {WORDS[m]} (its better replay above)"
+                            for r, m in chosen.items())
+    else:
+        loro = None
     figs: list[str] = []
     if plots is not None:
         from omnibench.analysis.plots import plot_prediction
@@ -200,7 +210,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
 
         click.echo("\nLeave-one-run-out NRMSE (each run predicted by models fitted to the other runs; "
                    "floor runs by models fitted to every run in the air):")
-        click.echo(table(loro))
+        click.echo(table(loro) + loro_note)
 
 
 def _baseline(robot, obs, model: Path) -> list:
