@@ -398,6 +398,10 @@ def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observat
             "counts_per_rev": cpr, "source": run.info.source, "imported": imported,
             "duty_timing": str(run.info.duty_timing or ("from_sample" if imported else "interval_before"))}
     info.update(_firmware_timing(run.info.mode, run.info.firmware_timing))
+    if proc == "step_response" and "mode" not in info:
+        # a trace replayed whole whose run does not say where the robot was (an import that could
+        # not read it off the data): unknown, never a default (predictor.run_mode)
+        info["mode"] = None
     info["V_batt"] = supply_at_rest(run.samples)
     info["current_lsb"] = current_resolution(run.samples)  # read off the logged values
     obs = Observations(runs={rid: info})

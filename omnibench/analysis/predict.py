@@ -131,6 +131,18 @@ class RunPrediction:
     firmware: str = ""
     #: unknown firmware: wheel-speed NRMSE under each documented sketch's timing (sketch -> NRMSE)
     firmware_profiled: dict[str, float] = field(default_factory=dict)
+    #: unknown mode (where the robot was): the mode it was replayed in, the better of the two
+    mode: str = ""
+    #: unknown mode: wheel-speed NRMSE replayed in the air and on the floor (mode -> NRMSE)
+    mode_profiled: dict[str, float] = field(default_factory=dict)
+
+    def mode_text(self) -> str:
+        """Where the run was replayed, in words, when its mode is unknown (else "")."""
+        if not self.mode_profiled:
+            return ""
+        words = {"upside_down": "in the air", "ground": "on the floor"}
+        return (f"where unknown: replayed in the air and on the floor, chose {words.get(self.mode, self.mode)} ("
+                + ", ".join(f"{words.get(k, k)} {100 * v:.2f} %" for k, v in self.mode_profiled.items()) + ")")
 
     def firmware_text(self) -> str:
         """The firmware timing used, in words."""
@@ -155,33 +167,60 @@ def _trace_groups(obs: Observations, run: str, proc: str) -> dict[int, pd.DataFr
 def predict_runs(robot: Robot, obs: Observations, *, profile_timing: bool = False) -> list[RunPrediction]:
     """Every run of `obs` replayed through `robot` with its own firmware timing; with
     `profile_timing`, a run of unknown firmware under each documented sketch's timing, the better
-    one kept (module docstring; leave-one-run-out profiles its own way, heldout_runs.py)."""
-    from dataclasses import replace
-
+    one kept (module docstring; leave-one-run-out profiles its own way, heldout_runs.py). A run
+    whose mode is unknown (where the robot was: `mode` None) is always replayed both in the air
+    and on the floor, the better kept, and says so (`RunPrediction.mode`, `mode_profiled`): an
+    unknown mode never takes a default."""
     out = []
     for run in obs.run_ids:
         info = obs.runs.get(run, {})
-        alts = info.get("timing_alternatives") or []
-        first = _predict_run(robot, obs, run)
-        first.firmware = str(info.get("timing_sketch") or info.get("sketch") or "")
-        if not alts or not profile_timing:
-            out.append(first)
-            continue
-        options = [first]
-        for alt in alts:
-            o = replace(obs, runs={**obs.runs, run: {**info, "command_order": alt["command_order"],
-                                                     "command_offset": alt["command_offset"]}})
-            rp = _predict_run(robot, o, run)
-            rp.firmware = str(alt.get("sketch", "?"))
-            options.append(rp)
-        key = "wheel_speed" if "wheel_speed" in first.nrmse else next(iter(first.nrmse), None)
-        # no signal scored (key None): every option scores NaN
-        scores = {o.firmware: float(o.nrmse.get(key, float("nan"))) if key is not None else float("nan")
-                  for o in options}
-        best = min(options, key=lambda o: (not math.isfinite(scores[o.firmware]), scores[o.firmware]))
-        best.firmware_profiled = scores
+        modes: list[str | None] = ["upside_down", "ground"] if "mode" in info and info["mode"] is None else [None]
+        best: RunPrediction | None = None
+        by_mode: dict[str, float] = {}
+        for mode in modes:
+            o = obs if mode is None else replace(obs, runs={**obs.runs, run: {**info, "mode": mode}})
+            rp = _predict_timings(robot, o, run, profile_timing)
+            if mode is None:
+                best = rp
+                continue
+            rp.mode = mode
+            score = _score(rp)
+            by_mode[mode] = score
+            if best is None or (math.isfinite(score) and not score >= _score(best)):
+                best = rp
+        assert best is not None
+        best.mode_profiled = by_mode
         out.append(best)
     return out
+
+
+def _score(rp: RunPrediction) -> float:
+    """The NRMSE that chooses between a run's replays: wheel speed, else its first signal."""
+    key = "wheel_speed" if "wheel_speed" in rp.nrmse else next(iter(rp.nrmse), None)
+    return float(rp.nrmse.get(key, float("nan"))) if key is not None else float("nan")
+
+
+def _predict_timings(robot: Robot, obs: Observations, run: str, profile_timing: bool) -> RunPrediction:
+    """One run replayed with its firmware timing or, with `profile_timing` and an unknown
+    firmware, under each documented sketch's timing, the better kept."""
+    info = obs.runs.get(run, {})
+    alts = info.get("timing_alternatives") or []
+    first = _predict_run(robot, obs, run)
+    first.firmware = str(info.get("timing_sketch") or info.get("sketch") or "")
+    if not alts or not profile_timing:
+        return first
+    options = [first]
+    for alt in alts:
+        o = replace(obs, runs={**obs.runs, run: {**info, "command_order": alt["command_order"],
+                                                 "command_offset": alt["command_offset"]}})
+        rp = _predict_run(robot, o, run)
+        rp.firmware = str(alt.get("sketch", "?"))
+        options.append(rp)
+    # no signal scored: every option scores NaN
+    scores = {o.firmware: _score(o) for o in options}
+    best = min(options, key=lambda o: (not math.isfinite(scores[o.firmware]), scores[o.firmware]))
+    best.firmware_profiled = scores
+    return best
 
 
 def _predict_run(robot: Robot, obs: Observations, run: str) -> RunPrediction:

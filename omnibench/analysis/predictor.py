@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from omnibench.analysis.observations import Observations, slope_fit
+from omnibench.errors import UserError
 from omnibench.model.scenario import Mode, Scenario
 from omnibench.model.simulator import decay_rates_of, simulate_batch, stable_substeps
 
@@ -514,10 +515,23 @@ def run_commands(obs: Observations, run: str, tr: pd.DataFrame) -> tuple[np.ndar
     return (t_cmd + off if math.isfinite(off) else t_cmd), U
 
 
+class UnknownMode(UserError):
+    """A trace-replay run whose `mode` (where the robot was) is unknown."""
+
+
 def run_mode(obs: Observations, run: str) -> Mode:
-    """Where a trace-replay run was: 'upside_down' (wheels in the air, the default) or 'ground'
-    (as recorded: the run schema allows only these two, and Scenario checks the value again)."""
-    return cast(Mode, str(obs.runs.get(run, {}).get("mode", "upside_down")))
+    """Where a trace-replay run was: 'upside_down' (wheels in the air) or 'ground', as recorded
+    (the run schema allows only these two, and Scenario checks the value again). A run read from
+    disk that does not say (`mode` None: its import could not read it off the data) raises
+    UnknownMode, a one-line UserError asking for --where: it is never replayed in a mode taken by
+    default. predict (predict.predict_runs), fit and diagnose (analysis/modes.py) give it each mode
+    in turn before it gets here; only a caller that does not profile meets the error.
+    Observations built in memory without the key (the simulated square waves) are in the air."""
+    info = obs.runs.get(run, {})
+    if "mode" in info and info["mode"] is None:
+        raise UnknownMode(f"run {run}: where the robot was is unknown (its import could not read it off the "
+                          "data, run.json conditions.where): import it again with --where air|floor, or leave it out")
+    return cast(Mode, str(info.get("mode", "upside_down")))
 
 
 def with_supply(robot: Robot, v_batt: float) -> Robot:

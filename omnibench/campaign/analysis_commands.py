@@ -19,8 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from omnibench.analysis.fitting import FitResult, fit, fit_per_wheel
+import numpy as np
+
+from omnibench.analysis.fitting import DEFAULT_PROCEDURES, FitResult, fit, fit_per_wheel
 from omnibench.analysis.model_file import load_model, write_model
+from omnibench.analysis.modes import ModeProfile, profile_deviance, profile_modes
 from omnibench.analysis.observations import PROCEDURES, Observations
 from omnibench.analysis.validate import EnergyValidation, validate_energy
 from omnibench.errors import UserError
@@ -64,12 +67,15 @@ class FitDone:
     wheels: dict[int, FitResult]  #: wheel (1-4) -> its own upside-down sweep fit (a, b, c)
     model_path: Path  #: the model file written
     figures: list[str]  #: the figures written
+    #: runs of unknown mode: the assignments of modes fitted and the one kept (None: no such run)
+    modes: ModeProfile | None = None
 
     def to_json(self) -> dict[str, Any]:
         data = self.result.to_json()
         data["per_wheel"] = {str(j): r.to_json()["parameters"] for j, r in self.wheels.items()}
         data["model_file"] = str(self.model_path)
         data["plots"] = self.figures
+        data["mode_profile"] = self.modes.to_json() if self.modes is not None else None
         return data
 
     def json_text(self) -> str:
@@ -105,8 +111,20 @@ def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None,
                         f"({obs.summary()})")
     say(f"Read {len(obs.run_ids)} run(s): {obs.summary()}")
     say("Fitting through the simulator (weighted least squares)...")
+
+    def fit_one(o: Observations) -> tuple[FitResult, float, dict[str, float]]:
+        r = fit(robot, o, free, procedures=procedures)
+        res = r.residuals[r.residuals["used"]]
+        group = (res["procedure"].astype(str) + "/" + res["signal"].astype(str)).to_numpy()
+        cost = profile_deviance(res["residual"].to_numpy(float), res["sigma"].to_numpy(float), group)
+        return r, cost, {"residual_rms": float(np.sqrt(np.mean(res["residual"].to_numpy(float) ** 2)))}
+
     with working("fitting"):
-        result = fit(robot, obs, free, procedures=procedures)
+        # runs of unknown mode: every assignment fitted, the lowest profile deviance kept (analysis/modes.py)
+        obs, result, modes = profile_modes(obs, procedures if procedures is not None else DEFAULT_PROCEDURES,
+                                           fit_one, say=progress)
+    if modes is not None:
+        result.notes.append(modes.text())
     wheels = {}
     if per_wheel and "sweep" in result.procedures and obs.sweep["wheel"].nunique() > 1:
         wheels = fit_per_wheel(result.robot, obs, ["a", "b", "c"])
@@ -119,7 +137,7 @@ def fit_runs(runs: Sequence[Path], *, out: Path, robot_file: Path | None = None,
         if "sweep" in result.procedures:
             figures.append(str(pl.plot_sweep_fit(result.robot, obs, result.residuals, plots)))
         figures.append(str(pl.plot_residuals(result.residuals, plots)))
-    return FitDone(result, wheels, model_path, figures)
+    return FitDone(result, wheels, model_path, figures, modes)
 
 
 # --------------------------------------------------------------------------- validate-energy

@@ -82,6 +82,7 @@ def diagnose_runs(runs: Sequence[Path], *, model: Path, out: Path | None = None,
 
     diag = diagnose(robot, obs, candidates=candidates, procedures=procedures, alpha=alpha, max_effects=max_effects,
                     seed=seed, progress=say, fit_info=fit_info)
+    obs = diag.problem.obs  # runs of unknown mode with the modes the declared fit chose (analysis/modes.py)
     held = None
     if loro:
         if len(obs.run_ids) < 2:

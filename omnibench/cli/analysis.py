@@ -161,10 +161,20 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
                                             allow_mixed=allow_mixed,
                                             model=(f"the model {model}", model_build(robot))),
                                  robot)
-    loro = _baseline(robot, obs, model) if baseline else None
     preds = predict_runs(robot, obs, profile_timing=True)  # a run's own firmware timing (issue 36)
     if not preds:
         raise UserError("the runs hold nothing to predict")
+    loro_note = ""
+    if baseline:
+        # a run of unknown mode enters the refits in the mode its replay through the model chose
+        from omnibench.analysis.modes import WORDS, with_modes
+
+        chosen = {p.run: p.mode for p in preds if p.mode_profiled and p.mode}
+        loro = _baseline(robot, with_modes(obs, chosen), model)
+        loro_note = "".join(f"\n{r}: where unknown, in the refits {WORDS[m]} (its better replay above)"
+                            for r, m in chosen.items())
+    else:
+        loro = None
     figs: list[str] = []
     if plots is not None:
         from omnibench.analysis.plots import plot_prediction
@@ -181,14 +191,16 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
     if as_json:
         _echo_json({"model": str(model), "nrmse": top,
                     "runs": [{"run": p.run, "procedure": p.procedure, "nrmse": p.nrmse, "firmware_timing": p.firmware,
-                              **({"firmware_profiled": p.firmware_profiled} if p.firmware_profiled else {})}
+                              **({"firmware_profiled": p.firmware_profiled} if p.firmware_profiled else {}),
+                              **({"mode": p.mode, "mode_profiled": p.mode_profiled} if p.mode_profiled else {})}
                              for p in preds],
                     "plots": figs,
                     "leave_one_run_out": None if loro is None else [
                         {"run": e.run, "kind": e.kind, "signal": e.signal, "nrmse": e.nrmse} for e in loro]})
         return
     for p in preds:
-        click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "") + "):")
+        click.echo(f"{p.run} ({p.procedure}" + (f"; {p.firmware_text()}" if p.firmware else "")
+                   + (f"; {p.mode_text()}" if p.mode_profiled else "") + "):")
         for k, v in p.nrmse.items():
             click.echo(f"  NRMSE {k:<16} {v:8.4f}  ({100 * v:.1f} %)")
     for f in figs:  # type: ignore[assignment]
@@ -198,7 +210,7 @@ def predict_command(runs: tuple[Path, ...], model: Path, plots: Path | None, bas
 
         click.echo("\nLeave-one-run-out NRMSE (each run predicted by models fitted to the other runs; "
                    "floor runs by models fitted to every run in the air):")
-        click.echo(table(loro))
+        click.echo(table(loro) + loro_note)
 
 
 def _baseline(robot, obs, model: Path) -> list:

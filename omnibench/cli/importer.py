@@ -28,20 +28,33 @@ def command() -> None:
                    "(already corrected), read off the data for the RC log (inputs.mat).")
 @click.option("--sketch", type=click.Choice(["square", "rc"]), default=None,
               help="Which 2019 sketch recorded the files (its command timing: send order and when "
-                   "the commands left relative to the time stamp). Default: the RC sketch for "
-                   "inputs.mat, the square-wave sketch otherwise (for results_ground_x.mat an "
-                   "assumption: the data README names no sketch; the run says so).")
+                   "the commands left relative to the time stamp). Default: stated by the RC layout "
+                   "(inputs.mat's 6-row data); otherwise read off the loop period (median time-stamp "
+                   "spacing within 3 ms of square.ino's 30 ms or ardu.ino.ino's 44 ms), else unknown "
+                   "(the analysis profiles over both). A loop that clearly says the other sketch is refused.")
+@click.option("--where", type=click.Choice(["air", "floor"]), default=None,
+              help="Where the robot was: wheels in the air or on the floor. Default: stated by the sweep, "
+                   "square-wave and RC layouts (in the air); for the floor-run layout read off the wheels' "
+                   "dynamics (the logged duties replayed through the robot file in both modes: one "
+                   "wheel-speed NRMSE at most half the other's), else unknown (predict profiles over both, "
+                   "fit and diagnose ask for --where). A statement the layout or the data contradict is refused.")
 @click.option("--direction", type=click.Choice(["forward", "sideways", "rotation", "diagonal"]), default=None,
               help="Which axis a floor run (results_ground_*.mat) drove: each wheel's duty is its sign in "
                    "the kinematics times the logged drive value. Default: read off the data (the sign of "
                    "each wheel's travel against the command); a log that disagrees with the given one is refused.")
+@click.option("--force", is_flag=True,
+              help="Import as --where / --sketch say even when the file's layout or its data say otherwise "
+                   "(the run's conditions record what the option overrode).")
 @click.option("--out", "out", default=Path("runs"), show_default=True,
               type=NonEmptyPath(path_type=Path), help="Folder that receives the run directories.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, direction: str | None, out: Path,
-        as_json: bool) -> None:
+def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, direction: str | None, where: str | None,
+        force: bool, out: Path, as_json: bool) -> None:
     """Import 2019 thesis logs: results_jacked.mat (upside-down sweep), square_*.mat (step responses),
-    results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty)."""
+    results_ground_x.mat (step responses on the floor), inputs.mat (RC-driven random duty), or any
+    log in one of these layouts. Every condition the file does not state (where the robot was, the
+    sketch, the sign map, a floor run's direction) is read off the data or kept unknown, and run.json
+    `conditions` records each with how it was decided and the statistic (docs/run-format.md)."""
     from omnibench.cli import verbosity
     from omnibench.runs import read_run
     from omnibench.runs.check import check_out_folder
@@ -59,20 +72,21 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
             raise UserError(f"{f}: cannot read ({exc.strerror or type(exc).__name__})") from None
         if digest in earlier:
             path, info = earlier[digest]
-            _check_same_options(f, path, info, sign_map, sketch)
+            _check_same_options(f, path, info, sign_map, sketch, where)
             run = read_run(path)
             results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": True,
                             "steps": int(len(run.steps)), "samples": int(len(run.samples))})
             if not as_json:
                 click.echo(str(path) if quiet else f"{f}: already imported as {path} (same file): nothing changed")
             continue
-        path = import_tfm(f, out, signs=sign_map, sketch=sketch, direction=direction)
+        path = import_tfm(f, out, signs=sign_map, sketch=sketch, direction=direction, where=where, force=force)
         run = read_run(path)
         info = run.info
         earlier[digest] = (path, info)
         results.append({"file": str(f), "run": str(path), "procedure": run.procedure, "already_imported": False,
                         "steps": int(len(run.steps)), "samples": int(len(run.samples)),
                         "sign_map": info.sign_map, "mode": info.mode, "firmware_timing": info.firmware_timing,
+                        "conditions": info.raw.get("conditions"),
                         **({"direction": info.direction} if info.direction else {})})
         if as_json:
             continue
@@ -80,15 +94,19 @@ def tfm(files: tuple[Path, ...], signs: str | None, sketch: str | None, directio
             click.echo(str(path))
             continue
         ft = info.firmware_timing or {}
-        where = f"{info.mode}" + (f", driving {info.direction}" if info.direction else "")
+        place = {"ground": "on the floor", "upside_down": "in the air"}.get(str(info.mode), "where unknown")
+        place += f", driving {info.direction}" if info.direction and info.mode == "ground" else ""
         if ft.get("sketch") == "unknown":
-            firmware = (f"firmware unknown (no sketch documented): profiled over {', '.join(ft.get('profiled_over', []))}, "
+            firmware = (f"firmware unknown (neither the file nor its loop tells the sketch): profiled over {', '.join(ft.get('profiled_over', []))}, "
                         f"replayed by default with {ft.get('default_sketch')}'s timing")
         else:
             firmware = (f"firmware {ft.get('sketch')}: commands sent in wheel order {ft['command_order']}, "
                         f"{1000 * ft.get('packet_s', 0):.2f} ms apart, {ft.get('commands', '')}")
         click.echo(f"{f}: {run.procedure} run with {len(run.steps)} steps and "
-                   f"{len(run.samples)} samples -> {path} (sign map {info.sign_map}, {where}; {firmware})")
+                   f"{len(run.samples)} samples -> {path} (sign map {info.sign_map}, {place}; {firmware})")
+        for name, c in (info.raw.get("conditions") or {}).items():
+            click.echo(f"  {name}: {_shown(c.get('value'))} ({c.get('decided')}"
+                       + (f": {c['evidence']}" if c.get("evidence") else "") + ")")
     if as_json:
         click.echo(json.dumps(results, indent=2))
 
@@ -106,8 +124,9 @@ def _imported(out: Path) -> dict[str, tuple[Path, RunInfo]]:
     return found
 
 
-def _check_same_options(f: Path, path: Path, info: RunInfo, sign_map: Any, sketch: str | None) -> None:
-    """A second import of the same file with other --signs or --sketch is refused: the folder
+def _check_same_options(f: Path, path: Path, info: RunInfo, sign_map: Any, sketch: str | None,
+                        where: str | None = None) -> None:
+    """A second import of the same file with other --signs, --sketch or --where is refused: the folder
     would hold the same log twice, and every later analysis would count it twice."""
     if sign_map is not None and list(sign_map) != list(info.sign_map or []):
         raise UserError(f"{f}: already imported as {path} with sign map {info.sign_map}; remove that run "
@@ -116,6 +135,10 @@ def _check_same_options(f: Path, path: Path, info: RunInfo, sign_map: Any, sketc
     if sketch is not None and sketch != _sketch_key(timing):
         raise UserError(f"{f}: already imported as {path} with the {timing.get('sketch')} timing; remove that run "
                         "to import it again with another --sketch, or give another --out")
+    was = {"upside_down": "air", "ground": "floor"}.get(str(info.mode))
+    if where is not None and where != was:
+        raise UserError(f"{f}: already imported as {path} with where {was or 'unknown'}; remove that run "
+                        "to import it again with another --where, or give another --out")
 
 
 def _sketch_key(timing: dict[str, Any]) -> str | None:

@@ -89,7 +89,7 @@ def test_unknown_firmware_is_profiled_over_the_documented_sketches_and_named(rob
     from omnibench.runs import read_run
     from omnibench.runs.tfm import RC_SKETCH, SQUARE_SKETCH, import_tfm
 
-    path = import_tfm(DATA / "results_ground_x.mat", tmp_path)
+    path = import_tfm(DATA / "results_ground_x.mat", tmp_path, where="floor")  # where: unknown from the data alone
     ft = read_run(path).metadata["firmware_timing"]
     assert ft["sketch"] == "unknown" and ft["profiled_over"] == [SQUARE_SKETCH["sketch"], RC_SKETCH["sketch"]]
     obs = Observations.from_runs([path], robot)

@@ -140,8 +140,8 @@ def test_loro_predicts_a_run_with_assumed_timing_under_each_documented_timing(ro
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        for f in ("results_jacked.mat", "results_ground_x.mat"):
-            import_tfm(data / f, tmp)
+        import_tfm(data / "results_jacked.mat", tmp)
+        import_tfm(data / "results_ground_x.mat", tmp, where="floor")  # unknown from the data alone
         obs = Observations.from_runs([tmp], robot)
         floor = next(r for r in obs.run_ids if obs.runs[r].get("mode") == "ground")
         sweep = next(r for r in obs.run_ids if r != floor)

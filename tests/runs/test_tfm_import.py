@@ -104,10 +104,28 @@ def _agree(run, j):
     return out
 
 
-def test_floor_runs_import_as_ground_step_responses_with_their_fitted_gains(tmp_path):
+def test_the_real_floor_run_reads_where_unknown_with_the_wheel_profiled(tmp_path):
+    """results_ground_x.mat with no --where: against the file's own wheel it reads as the floor
+    (ratio above 2), but a heavier in-air wheel with an actuator lag replays it about as well:
+    with the wheel profiled neither mode wins by the margin, so where stays unknown."""
+    from omnibench.model import default_robot
+    from omnibench.runs.tfm import WHERE_MARGIN
+
     run = read_run(import_tfm(DATA / "results_ground_x.mat", tmp_path))
+    w = run.metadata["conditions"]["where"]
+    st = w["statistic"]
+    assert w["value"] == "unknown" and run.metadata["mode"] is None
+    assert max(st["nrmse_air"], st["nrmse_floor"]) < WHERE_MARGIN * min(st["nrmse_air"], st["nrmse_floor"])
+    assert st["nrmse_air_file"] >= WHERE_MARGIN * st["nrmse_floor_file"]
+    # the in-air wheel that comes close is heavier than the file's, as the real one is
+    assert st["best_air"]["I_w"] > default_robot().I_w
+
+
+def test_floor_runs_import_as_ground_step_responses_with_their_fitted_gains(tmp_path):
+    run = read_run(import_tfm(DATA / "results_ground_x.mat", tmp_path, where="floor"))
     g = _mat("results_ground_x.mat")
     assert run.procedure == "step_response" and run.metadata["mode"] == "ground"
+    assert run.metadata["conditions"]["where"]["decided"] == "stated by the user"
     assert len(run.samples) == g["t"].size == 143
     np.testing.assert_allclose(run.samples["t"], g["t"].ravel())
     np.testing.assert_allclose(run.samples["u2"], np.round(g["x"].ravel() * 127) / 127)

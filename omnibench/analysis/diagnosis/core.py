@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from omnibench.analysis import modes as unknown_modes
 from omnibench.analysis.diagnosis import core_params, engine, structure, transient
 from omnibench.analysis.diagnosis.probabilities import chi2_isf
 from omnibench.analysis.observations import Observations
@@ -145,6 +146,9 @@ class Diagnosis:
     final_heldout: np.ndarray
     notes: list[str] = field(default_factory=list)
     exposed_by: dict[str, structure.Finding] = field(default_factory=dict)
+    #: runs of unknown mode: the assignments of modes the declared fit tried and the one kept for
+    #: the rest (`problem.obs` holds it); None: no such run
+    mode_profile: unknown_modes.ModeProfile | None = None
 
     def to_json(self) -> dict[str, Any]:
         def f(x: float) -> float | None:
@@ -175,6 +179,7 @@ class Diagnosis:
             "procedures": list(self.problem.procedures),
             "entries": int(self.problem.used.sum()),
             "notes": self.notes,
+            "mode_profile": self.mode_profile.to_json() if self.mode_profile is not None else None,
         }
 
     def text(self) -> str:
@@ -316,12 +321,21 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
     say("fitting the declared model")
     start, free, notes = _base_free(robot, obs, procs, fit_info, say)
     free += [f"{e}.{p}" for e in robot.effects if e in EFFECTS for p in EFFECTS[e].fit]
-    problem = engine.Problem(obs, procs)
-    if not problem.used.any():
-        raise UserError("no usable measurements in these runs")
-    say(f"fitting the declared model to all {len(problem)} measurements ({len(free)} parameters, "
-        f"{', '.join(problem.procedures)})")
-    base = engine.fit_model(problem, start, free, max_nfev=POLISH_NFEV)
+
+    def declared_fit(o: Observations) -> tuple[tuple[engine.Problem, engine.ModelFit], float, dict[str, float]]:
+        pr = engine.Problem(o, procs)
+        if not pr.used.any():
+            raise UserError("no usable measurements in these runs")
+        say(f"fitting the declared model to all {len(pr)} measurements ({len(free)} parameters, "
+            f"{', '.join(pr.procedures)})")
+        f = engine.fit_model(pr, start, free, max_nfev=POLISH_NFEV)
+        return (pr, f), f.deviance, {}
+
+    # runs of unknown mode: the declared model fitted in every assignment of modes, the lowest
+    # profile deviance kept, and those modes for the rest of the diagnosis (analysis/modes.py)
+    obs, (problem, base), mode_profile = unknown_modes.profile_modes(obs, procs, declared_fit, say=say)
+    if mode_profile is not None:
+        notes.append(mode_profile.text() + "; the diagnosis keeps these modes")
     fold = engine.cv_folds(problem, folds, seed)
     base_struct, n_tests = _structure_of(problem, base)
     base_sig = structure.significant(base_struct, n_tests)
@@ -539,7 +553,8 @@ def diagnose(robot: Robot, obs: Observations, *, candidates: Sequence[str] | Non
     return Diagnosis(declared=robot, extended=current.robot, base_fit=base, final_fit=current, selected=selected,
                      rejected=rejected, ambiguous=ambiguous, unexplained=final_sig, base_structure=base_sig,
                      before=engine.error_table(problem, base_ho), after=engine.error_table(problem, final_ho),
-                     problem=problem, base_heldout=base_ho, final_heldout=final_ho, notes=notes, exposed_by=exposed)
+                     problem=problem, base_heldout=base_ho, final_heldout=final_ho, notes=notes, exposed_by=exposed,
+                     mode_profile=mode_profile)
 
 
 def _timed(progress: Callable[[str], None] | None) -> Callable[[str], None]:
