@@ -32,3 +32,17 @@ def results_at(ref: str, script: Path, args: list[str]) -> Any:
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False,
                            capture_output=True)
+
+
+def without_option(argv: list[str], option: str) -> list[str]:
+    """argv without `option` and its value (as '--opt v' or '--opt=v'): the arguments to pass on to
+    the same script at another ref."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == option:
+            skip = True
+        elif not a.startswith(option + "="):
+            out.append(a)
+    return out

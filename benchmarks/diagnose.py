@@ -48,6 +48,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from at_ref import results_at  # benchmarks/at_ref.py (scripts run from this folder)
+from at_ref import without_option as _without
 
 HERE = Path(__file__).resolve()
 ROOT = HERE.parents[1]
@@ -237,19 +238,6 @@ def main(argv: list[str] | None = None) -> int:
         print()
         print(side_by_side(before, results, args.before))
     return 0
-
-
-def _without(argv: list[str], option: str) -> list[str]:
-    """argv without `option` and its value (as '--opt v' or '--opt=v')."""
-    out, skip = [], False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a == option:
-            skip = True
-        elif not a.startswith(option + "="):
-            out.append(a)
-    return out
 
 
 def run_at_ref(ref: str, argv: list[str]) -> list[dict]:

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from at_ref import results_at  # benchmarks/at_ref.py (scripts run from this folder)
+from at_ref import without_option as _without
 
 HERE = Path(__file__).resolve()
 ROOT = HERE.parents[1]
@@ -197,19 +198,6 @@ def main(argv: list[str] | None = None) -> int:
         print()
         print(side_by_side(before, rows, args.before))
     return 0
-
-
-def _without(argv: list[str], option: str) -> list[str]:
-    """argv without `option` and its value (as '--opt v' or '--opt=v')."""
-    out, skip = [], False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a == option:
-            skip = True
-        elif not a.startswith(option + "="):
-            out.append(a)
-    return out
 
 
 def side_by_side(before: list[dict[str, Any]], after: list[dict[str, Any]], ref: str) -> str:

@@ -35,9 +35,10 @@ def command() -> None:
 @click.option("--where", type=click.Choice(["air", "floor"]), default=None,
               help="Where the robot was: wheels in the air or on the floor. Default: stated by the sweep, "
                    "square-wave and RC layouts (in the air); for the floor-run layout read off the wheels' "
-                   "dynamics (the logged duties replayed through the robot file in both modes: one "
-                   "wheel-speed NRMSE at most half the other's), else unknown (predict profiles over both, "
-                   "fit and diagnose ask for --where). A statement the layout or the data contradict is refused.")
+                   "dynamics (the logged duties replayed through the robot file in both modes, the wheel's "
+                   "inertia and lag profiled: one best wheel-speed NRMSE at most half the other's), else "
+                   "unknown (fit, predict and diagnose profile over both and say which they kept). A "
+                   "statement the layout or the data contradict is refused.")
 @click.option("--direction", type=click.Choice(["forward", "sideways", "rotation", "diagonal"]), default=None,
               help="Which axis a floor run (results_ground_*.mat) drove: each wheel's duty is its sign in "
                    "the kinematics times the logged drive value. Default: read off the data (the sign of "
