@@ -8,7 +8,8 @@ the simulation-based fits replay:
     run, step, wheel (1-4), u (duty), direction (+1/-1), wheel_mass (kg), F_N (N, axle load =
     wheel_mass g), omega (rad/s, steady wheel speed), omega_se (rad/s, its standard error;
     NaN if unknown), current (A, mean motor current; NaN if not logged), current_se (A),
-    n (samples averaged), steady (bool).
+    n (samples averaged), steady (bool), omega_s2 (rad^2, the residual scatter per reading of the
+    angle line fit omega comes from; NaN if the samples were not logged).
 ``forward`` (III.ii) and ``lateral`` (III.iii) (one row per run step, robot on the ground)
     run, step, u1..u4 (duties), duration (s driving), t_total (s driving + settle), payload (kg),
     heading (rad), measured_forward / measured_left (m, operator's tape, body frame at the start;
@@ -23,6 +24,10 @@ the simulation-based fits replay:
     random-duty RC log; one row per constant-duty step; the run's `mode`, firmware timing and
     measured supply are in ``runs``)
     run, step, duty, t_start, t_end (s, board time), n.
+
+``windows[(run, step)]``: the board times (s) of the readings a sweep step's steady speeds were
+fitted over: with omega_s2 they give each speed's standard error at any speed
+(`sweep_speed_se`), which the fit evaluates at the model's prediction.
 
 ``traces[(run, step)]``: the step's samples as a DataFrame with t (s since the step start; for
 ``step_response`` board time), u1..u4, phi1..4 (rad since the step start), i1..i4 (A), V_batt (V),
@@ -44,7 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from omnibench.analysis.quantisation import encoder_slope_fit
+from omnibench.analysis.quantisation import encoder_slope_fit, line_fit, slope_se_at
 from omnibench.errors import UserError
 from omnibench.model.context import GRAVITY
 from omnibench.procedures import RUN_PROCEDURES  # run.json `procedure` -> Observations table
@@ -56,7 +61,7 @@ if TYPE_CHECKING:
 PROCEDURES = ("sweep", "forward", "lateral", "energy", "step_response")
 
 SWEEP_COLUMNS = ["run", "step", "wheel", "u", "direction", "wheel_mass", "F_N", "omega", "omega_se",
-                 "current", "current_se", "n", "steady", "time", "V_batt"]
+                 "current", "current_se", "n", "steady", "time", "V_batt", "omega_s2"]
 RUN_COLUMNS = (["run", "step", "u1", "u2", "u3", "u4", "duration", "t_total", "payload", "heading",
                 "measured_forward", "measured_left", "measured_se", "enc_forward", "enc_left"]
                + [f"dphi{j}" for j in range(1, 5)] + [f"w{j}" for j in range(1, 5)]
@@ -119,6 +124,8 @@ class Observations:
     energy: pd.DataFrame = field(default_factory=lambda: _empty(ENERGY_COLUMNS))
     step_response: pd.DataFrame = field(default_factory=lambda: _empty(STEP_RESPONSE_COLUMNS))
     traces: dict[tuple[str, int], pd.DataFrame] = field(default_factory=dict)
+    #: (run, step) -> times (s) of the readings a sweep step's speeds were fitted over
+    windows: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
     #: run id -> facts about the run (procedure, path, source, counts_per_rev, ...)
     runs: dict[str, dict[str, Any]] = field(default_factory=dict)
 
@@ -170,7 +177,8 @@ class Observations:
             out[p] = df[keep].reset_index(drop=True)
         used = {(r, int(s)) for p in PROCEDURES for r, s in zip(out[p]["run"], out[p]["step"])}
         traces = {k: v for k, v in self.traces.items() if k in used}
-        return replace(self, traces=traces, runs={k: v for k, v in self.runs.items()
+        windows = {k: v for k, v in self.windows.items() if k in used}
+        return replace(self, traces=traces, windows=windows, runs={k: v for k, v in self.runs.items()
                                                   if any(k == r for r, _ in used)}, **out)
 
     def split(self, fraction: float = 0.5, seed: int = 0) -> tuple["Observations", "Observations"]:
@@ -204,11 +212,13 @@ class Observations:
             frames = [o.table(p) for o in items if len(o.table(p))]
             out[p] = pd.concat(frames, ignore_index=True) if frames else Observations().table(p)
         traces: dict = {}
+        windows: dict = {}
         runs: dict = {}
         for o in items:
             traces.update(o.traces)
+            windows.update(o.windows)
             runs.update(o.runs)
-        return Observations(traces=traces, runs=runs, **out)
+        return Observations(traces=traces, windows=windows, runs=runs, **out)
 
     # ----------------------------------------------------------------------------- from runs
     @classmethod
@@ -409,7 +419,7 @@ def _from_run(run: Run, robot: Robot | None, rid: str | None = None) -> Observat
     if not len(steps):
         return obs
     if proc == "sweep":
-        obs.sweep = _sweep_rows(run, rid, rb, cpr)
+        obs.sweep = _sweep_rows(run, rid, rb, cpr, obs.windows)
     elif proc in ("forward", "lateral"):
         df, traces = _run_rows(run, rid, rb, cpr, proc)
         setattr(obs, proc, df)
@@ -471,7 +481,28 @@ def mean_se_quantised(x: np.ndarray, lsb: float) -> np.ndarray:
     return np.sqrt(np.maximum(std, PROTOCOL_CURRENT_LSB / math.sqrt(12)) ** 2 / n + stuck)
 
 
-def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
+def sweep_speed_se(obs: Observations, rows: pd.DataFrame, speeds: np.ndarray) -> np.ndarray:
+    """Standard error (rad/s) of each sweep speed in `rows` (run, step, omega_s2: rows of
+    obs.sweep) had its wheel turned at `speeds` (rad/s): the encoder's rounding at that speed over
+    the step's window (obs.windows), plus the white scatter its line fit showed beyond rounding
+    (`quantisation.slope_se_at`). NaN where the window or the scatter is unknown.
+
+    The stated omega_se is this at the step's own estimate; near a whole number of counts per
+    reading the rounding error swings sharply with the speed, so that SE follows the estimate's
+    own error (a step whose rounding happened to pull it one way reads as the more precise) and a
+    fit weighted by it is biased. At a speed the step's noise does not move (the model's
+    prediction) the weight no longer depends on the step's own error."""
+    out = np.full(len(rows), np.nan)
+    for k, (run, step, s2, w) in enumerate(zip(rows["run"], rows["step"], rows["omega_s2"], speeds)):
+        t = obs.windows.get((run, int(step)))
+        cpr = obs.runs.get(run, {}).get("counts_per_rev")
+        if t is not None and cpr and math.isfinite(float(s2)) and math.isfinite(float(w)):
+            out[k] = slope_se_at(t, float(w), float(s2), float(cpr))
+    return out
+
+
+def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float,
+                windows: dict[tuple[str, int], np.ndarray]) -> pd.DataFrame:
     rows = []
     floor = quantisation_se(cpr)
     lsb = current_resolution(run.samples)
@@ -481,6 +512,7 @@ def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
         s = run.step_samples(k)
         n = 0
         w_se = np.full(4, np.nan)
+        w_s2 = np.full(4, np.nan)
         i_se = np.full(4, np.nan)
         average = _num(st.get("average"))  # the runner's averaging time (older runs: the default's)
         average = average if math.isfinite(average) and average > 0 else STEADY_AVERAGE
@@ -492,6 +524,8 @@ def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
             if sel.sum() >= 4:
                 tr = _trace_values(s, None, cpr, relative=False, rows=sel)  # (column, sample): _trace's block
                 _, w_se = encoder_slope_fit(tr[0], tr[5:9].T, cpr)
+                _, w_s2 = line_fit(tr[0], tr[5:9].T)
+                windows[(rid, k)] = tr[0].copy()
                 n = int(sel.sum())
                 currents = tr[9:13].T
                 if np.isfinite(currents).all() and n > 1:
@@ -521,7 +555,7 @@ def _sweep_rows(run: Run, rid: str, robot: Robot, cpr: float) -> pd.DataFrame:
                          "F_N": mass * GRAVITY, "omega": w, "omega_se": float(w_se[j]),
                          "current": cur, "current_se": float(i_se[j]) if math.isfinite(cur) else float("nan"),
                          "n": n, "steady": bool(st.get("steady", True)) if st.get("steady") is not None else True,
-                         "time": _num(st.get("t_end")), "V_batt": v_batt})
+                         "time": _num(st.get("t_end")), "V_batt": v_batt, "omega_s2": float(w_s2[j])})
     df = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
     return df
 

@@ -125,31 +125,46 @@ def quantised_slope(t: np.ndarray, omega: float, counts_per_rev: float, white: f
     return slope_var, resid_var
 
 
-def encoder_slope_fit(t: np.ndarray, phi: np.ndarray, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
-    """Straight-line fit of wheel angles (rad) read in whole counts against time (s): slope
-    (rad/s) and its standard error per column of phi (n, k). The error is rounding's at that
-    slope and window (see the module docstring), with the residual scatter rounding does not
-    explain taken as white angle noise before the rounding."""
+def slope_se_at(t: np.ndarray, omega: float, s2: float, counts_per_rev: float) -> float:
+    """Standard error (rad/s) of a least-squares slope of angles read in whole counts at times t
+    (s), for a wheel turning at omega (rad/s) whose line fit left a residual scatter s2 (rad^2 per
+    reading): rounding's error at that speed and window, plus the scatter rounding does not
+    explain (s2 less what rounding leaves at that speed) taken as white angle noise before the
+    rounding. `encoder_slope_fit` evaluates it at the fitted slope; a fit that weights by it
+    evaluates it again at the model's prediction (`omnibench.analysis.fitting`), since at the
+    step's own slope it follows that slope's own error (see `speed_se_at_prediction`)."""
+    if not math.isfinite(omega) or not math.isfinite(s2):
+        return float("nan")
+    v, r = quantised_slope(t, float(omega), counts_per_rev)
+    white = max(float(s2) - r, 0.0)  # scatter that rounding does not explain
+    if white > 0:
+        v, _ = quantised_slope(t, float(omega), counts_per_rev, white=white)
+    return math.sqrt(v) if math.isfinite(v) else float("nan")
+
+
+def line_fit(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares slope of each column of phi (n, k) against t and the residual scatter it
+    leaves per reading (sum of squares / (n - 2)); NaN with fewer than 3 readings."""
     t = np.asarray(t, dtype=float)
     phi = np.asarray(phi, dtype=float)
     if phi.ndim == 1:
         phi = phi[:, None]
     n = len(t)
-    k = phi.shape[1]
     if n < 3:
-        return np.full(k, np.nan), np.full(k, np.nan)
+        return np.full(phi.shape[1], np.nan), np.full(phi.shape[1], np.nan)
     tc = t - t.mean()
     sxx = float(np.sum(tc * tc))
     slope = (tc @ (phi - phi.mean(axis=0))) / sxx
     res = phi - phi.mean(axis=0) - np.outer(tc, slope)
-    s2 = np.sum(res * res, axis=0) / (n - 2)
-    se = np.full(k, np.nan)
-    for j in range(k):
-        if not math.isfinite(slope[j]):
-            continue
-        v, r = quantised_slope(t, float(slope[j]), counts_per_rev)
-        white = max(float(s2[j]) - r, 0.0)  # scatter that rounding does not explain
-        if white > 0:
-            v, _ = quantised_slope(t, float(slope[j]), counts_per_rev, white=white)
-        se[j] = math.sqrt(v)
+    return slope, np.sum(res * res, axis=0) / (n - 2)
+
+
+def encoder_slope_fit(t: np.ndarray, phi: np.ndarray, counts_per_rev: float) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-line fit of wheel angles (rad) read in whole counts against time (s): slope
+    (rad/s) and its standard error per column of phi (n, k). The error is rounding's at that
+    slope and window (see the module docstring), with the residual scatter rounding does not
+    explain taken as white angle noise before the rounding (`slope_se_at`)."""
+    slope, s2 = line_fit(t, phi)
+    t = np.asarray(t, dtype=float)
+    se = np.array([slope_se_at(t, float(w), float(v), counts_per_rev) for w, v in zip(slope, s2)])
     return slope, se

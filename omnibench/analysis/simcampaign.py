@@ -28,7 +28,7 @@ from omnibench.analysis.observations import (
     Observations,
     timed_row,
 )
-from omnibench.analysis.quantisation import encoder_slope_fit
+from omnibench.analysis.quantisation import encoder_slope_fit, line_fit
 from omnibench.model.context import GRAVITY
 from omnibench.model.scenario import Scenario
 from omnibench.model.simulator import simulate_batch
@@ -134,8 +134,10 @@ def simulate_campaign(robot: Robot, *, world_effects: Mapping[str, Mapping[str, 
             for b, s in enumerate(steps):
                 tr = _sensors(rng, res, b, cpr, current, [0.0], U[b])
                 sel = tr["t"].to_numpy() >= hold - average - 1e-9
-                w, w_se = encoder_slope_fit(tr["t"].to_numpy()[sel], tr[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel],
-                                            cpr)
+                t_win, phi_win = tr["t"].to_numpy()[sel], tr[[f"phi{j}" for j in range(1, 5)]].to_numpy()[sel]
+                w, w_se = encoder_slope_fit(t_win, phi_win, cpr)
+                _, w_s2 = line_fit(t_win, phi_win)
+                obs.windows[(rid, s.index)] = t_win
                 n = int(sel.sum())
                 masses = s.world.wheel_mass or robot.wheel_mass
                 for j in range(4):
@@ -147,7 +149,8 @@ def simulate_campaign(robot: Robot, *, world_effects: Mapping[str, Mapping[str, 
                                  "current": float(cur.mean()) if current else float("nan"),
                                  "current_se": float(max(cur.std(ddof=1), CURRENT_LSB / math.sqrt(12)) / math.sqrt(n))
                                  if current else float("nan"),
-                                 "n": n, "steady": True, "time": (s.index + 1) * hold})
+                                 "n": n, "steady": True, "time": (s.index + 1) * hold,
+                                 "omega_s2": float(w_s2[j])})
             obs.sweep = pd.DataFrame(rows, columns=SWEEP_COLUMNS)
         elif proc in ("forward", "lateral"):
             scen = [Scenario(mode="ground", payload=s.world.payload, effects=world_effects) for s in steps]
