@@ -718,6 +718,11 @@ def speed_sigma_at_prediction(pred: Predictor, f: np.ndarray, sigma: np.ndarray)
     idx = idx[have]
     se = sweep_speed_se(pred.obs, sw.iloc[[p for p in pos if p is not None]], f[idx])
     ok = np.isfinite(se) & (se > 0)
+    # a run whose steps are not all windowed (the 2019 sweep: one raw step among tabled speeds)
+    # keeps its stated errors: one row on another scale would outweigh the rest of its run
+    runs = t["run"].to_numpy()[idx]
+    partial = set(runs[~ok])
+    ok &= np.array([r not in partial for r in runs], dtype=bool)
     if not ok.any():
         return None
     out = sigma.copy()
